@@ -1,0 +1,3 @@
+from pdmpm_cli.cli.app import main
+
+main()
