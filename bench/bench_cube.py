@@ -1,0 +1,78 @@
+"""Throughput of the full step on an elastic cube: particle-steps/s and bond-updates/s per size.
+
+Usage: python bench/bench_cube.py [--sizes 32000 128000 512000] [--steps 20]
+Prints a markdown table (for docs/results.md) with the per-phase split of the step time.
+"""
+
+import argparse
+import platform
+import time
+
+import numba
+import numpy as np
+
+from pdmpm_cli.engine.model import State
+from pdmpm_cli.engine.solver import Solver
+from pdmpm_cli.runner import prepare_scene
+from pdmpm_cli.scene.schema import Scene
+
+
+def cube_scene(n_target: int) -> Scene:
+    """A jittered elastic cube of about n_target particles (8 per cell, delta = 2h), free in space."""
+    h = 0.01
+    side = h * round(n_target ** (1 / 3))
+    dx = 2 * h
+    pad = 6 * dx
+    return Scene.model_validate({
+        "simulation": {"duration": 1.0, "fps": 10},
+        "grid": {"cell_size": dx, "domain": {"min": [0, 0, 0], "max": [side + 2 * pad] * 3}},
+        "gravity": [0, 0, 0],
+        "bodies": [{"name": "cube",
+                    "geometry": {"mode": "cloud", "sampling": "jittered",
+                                 "shape": {"type": "box", "center": [pad + side / 2] * 3, "size": [side] * 3}},
+                    "material": {"model": "elastic", "density": 1000.0, "lam": 1e5, "mu": 1e5},
+                    "angular_velocity": [0.0, 0.5, 0.0]}],
+    })
+
+
+def bench(n_target: int, steps: int) -> dict:
+    prep = prepare_scene(cube_scene(n_target), "bench.yaml")
+    state = State.allocate(prep.model, prep.disc, "fbar" in prep.plan.phases)
+    solver = Solver(prep.model, prep.plan)
+    dt = prep.plan.dt_max
+    for _ in range(2):  # compile (or load the cache) and warm up
+        solver.substep(state, dt)
+    solver.phase_time.clear()
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        solver.substep(state, dt)
+    wall = time.perf_counter() - t0
+    n, nb = prep.plan.particles, prep.plan.bonds
+    return {
+        "particles": n, "bonds_per_particle": nb / n, "step_ms": 1e3 * wall / steps,
+        "particle_steps_per_s": n * steps / wall, "bond_updates_per_s": nb * steps / wall,
+        "phases": {k: 1e3 * v / steps for k, v in solver.phase_time.items()},
+        "memory_mib": prep.plan.memory_bytes / 2**20,
+    }
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[32_000, 128_000, 512_000])
+    ap.add_argument("--steps", type=int, default=20)
+    args = ap.parse_args()
+    rows = [bench(n, args.steps) for n in args.sizes]
+    print(f"machine: {platform.processor() or platform.machine()}, {numba.get_num_threads()} threads, "
+          f"numba {numba.__version__}, float64")
+    phases = list(rows[0]["phases"])
+    print("| particles | bonds/particle | step [ms] | particle-steps/s | bond-updates/s | "
+          + " | ".join(f"{p} [ms]" for p in phases) + " | plan memory [MiB] |")
+    print("|" + "---|" * (6 + len(phases)))
+    for r in rows:
+        print(f"| {r['particles']} | {r['bonds_per_particle']:.1f} | {r['step_ms']:.1f} | "
+              f"{r['particle_steps_per_s'] / 1e6:.2f} M | {r['bond_updates_per_s'] / 1e6:.1f} M | "
+              + " | ".join(f"{r['phases'][p]:.1f}" for p in phases) + f" | {r['memory_mib']:.0f} |")
+
+
+if __name__ == "__main__":
+    main()

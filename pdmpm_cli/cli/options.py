@@ -1,0 +1,12 @@
+"""Options shared by several commands."""
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+SceneArg = Annotated[Path, typer.Argument(help="Scene YAML file.", show_default=False)]
+SetOpt = Annotated[
+    list[str],
+    typer.Option("--set", "-s", help="Override a scene value before validation, e.g. --set bodies.0.material.mu=2e5."),
+]

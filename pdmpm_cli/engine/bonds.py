@@ -1,0 +1,136 @@
+"""Peridynamic families and the averaged deformation (paper eq. 4, METHOD.md sections 1-2).
+
+Families are stored in CSR form: the bonds of particle p are bond_nbr[bond_start[p]:bond_start[p+1]].
+Bonds join particles of the same body within the horizon delta (strictly: w(delta) = 0 adds nothing).
+Influence w(|xi|) = 1 - |xi| / delta (the paper's "linear weight function").
+"""
+
+import math
+
+import numpy as np
+from numba import njit, prange
+from scipy.spatial import cKDTree
+
+# Regularisation of rank-deficient shape tensors (cloth, chains): K + EPS tr(K) I, exact within the span.
+RANK_TOL = 1e-6
+EPS = 1e-9
+
+
+def build_families(rest_x: np.ndarray, body_ranges, body_horizon) -> tuple[np.ndarray, np.ndarray]:
+    """CSR families: bonds within each body's horizon, both directions stored."""
+    src, dst = [], []
+    for (start, end), delta in zip(body_ranges, body_horizon):
+        pts = rest_x[start:end]
+        pairs = cKDTree(pts).query_pairs(delta, output_type="ndarray")
+        if len(pairs):
+            d = np.linalg.norm(pts[pairs[:, 1]] - pts[pairs[:, 0]], axis=1)
+            pairs = pairs[d < delta * (1.0 - 1e-12)] + start
+        src += [pairs[:, 0], pairs[:, 1]]
+        dst += [pairs[:, 1], pairs[:, 0]]
+    n = len(rest_x)
+    src = np.concatenate(src) if src else np.zeros(0, np.int64)
+    dst = np.concatenate(dst) if dst else np.zeros(0, np.int64)
+    order = np.lexsort((dst, src))
+    bond_nbr = dst[order].astype(np.int32)
+    bond_start = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(src, minlength=n), out=bond_start[1:])
+    return bond_start, bond_nbr
+
+
+@njit(cache=True)
+def invert_shape_tensor(k, out):
+    """out = K^-1, or the inverse of K + EPS tr(K) I when K is rank-deficient (shells, cloth)."""
+    tr = k[0, 0] + k[1, 1] + k[2, 2]
+    if tr <= 0.0:
+        out[:, :] = 0.0
+        return
+    det = np.linalg.det(k)
+    if det <= RANK_TOL * (tr / 3.0) ** 3:
+        reg = k.copy()
+        for a in range(3):
+            reg[a, a] += EPS * tr
+        out[:, :] = np.linalg.inv(reg)
+    else:
+        out[:, :] = np.linalg.inv(k)
+
+
+@njit(parallel=True, cache=True)
+def reference_family_terms(rest_x, particle_volume, bond_start, bond_nbr, particle_body, body_horizon,
+                           particle_omega, particle_Kinv):
+    """Weighted volume omega_p = sum_q w V_q and the inverse shape tensor K_p^-1 (eq. 4, second factor)."""
+    for p in prange(rest_x.shape[0]):
+        delta = body_horizon[particle_body[p]]
+        k = np.zeros((3, 3))
+        om = 0.0
+        for b in range(bond_start[p], bond_start[p + 1]):
+            q = bond_nbr[b]
+            x0 = rest_x[q, 0] - rest_x[p, 0]
+            x1 = rest_x[q, 1] - rest_x[p, 1]
+            x2 = rest_x[q, 2] - rest_x[p, 2]
+            r = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+            wv = (1.0 - r / delta) * particle_volume[q]
+            om += wv
+            xi = (x0, x1, x2)
+            for a in range(3):
+                for c in range(3):
+                    k[a, c] += wv * xi[a] * xi[c]
+        particle_omega[p] = om
+        invert_shape_tensor(k, particle_Kinv[p])
+
+
+@njit(parallel=True, cache=True)
+def averaged_deformation(particle_x, rest_x, particle_volume, bond_start, bond_nbr, particle_body, body_horizon,
+                         particle_Kinv, particle_Fbar):
+    """Fbar_p = (sum_q w V_q eta (x) xi) K_p^-1 (eq. 4 with METHOD.md's correction: eta, not w, in front)."""
+    for p in prange(particle_x.shape[0]):
+        delta = body_horizon[particle_body[p]]
+        a = np.zeros((3, 3))
+        for b in range(bond_start[p], bond_start[p + 1]):
+            q = bond_nbr[b]
+            x0 = rest_x[q, 0] - rest_x[p, 0]
+            x1 = rest_x[q, 1] - rest_x[p, 1]
+            x2 = rest_x[q, 2] - rest_x[p, 2]
+            r = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+            wv = (1.0 - r / delta) * particle_volume[q]
+            xi = (x0, x1, x2)
+            for i in range(3):
+                e = wv * (particle_x[q, i] - particle_x[p, i])
+                for c in range(3):
+                    a[i, c] += e * xi[c]
+        kinv = particle_Kinv[p]
+        for i in range(3):
+            for c in range(3):
+                particle_Fbar[p, i, c] = a[i, 0] * kinv[0, c] + a[i, 1] * kinv[1, c] + a[i, 2] * kinv[2, c]
+
+
+def calibration_coefficients(particle_omega, particle_body, body_horizon):
+    """c_p = 5 / omega_p (docs/method.md): exact energy under isotropic stretch for every particle.
+
+    Dividing by the particle's own weighted volume is the surface correction: a particle near a free
+    surface has fewer bonds and gets a larger c_p. omega_p is floored at 1/8 of the full-ball value
+    pi delta^3 / 3 (a cube corner) so that nearly isolated particles do not become arbitrarily stiff."""
+    full = np.pi * body_horizon[particle_body] ** 3 / 3.0
+    coef = 5.0 / np.maximum(particle_omega, full / 8.0)
+    coef[particle_omega <= 0.0] = 0.0
+    return coef
+
+
+@njit(parallel=True, cache=True)
+def bond_time_steps(rest_x, particle_volume, bond_start, bond_nbr, particle_body, body_horizon, body_modulus,
+                    body_density, particle_coef, out):
+    """Per-particle critical step sqrt(2 rho / sum_q k_pq / V_p) (Silling & Askari 2005) for our bonds.
+
+    k_pq = (c_p + c_q) w M V_p V_q / |xi|^2 is the axial stiffness of bond p-q under eqs. 6-7."""
+    for p in prange(rest_x.shape[0]):
+        body = particle_body[p]
+        delta = body_horizon[body]
+        k = 0.0
+        for b in range(bond_start[p], bond_start[p + 1]):
+            q = bond_nbr[b]
+            r2 = 0.0
+            for a in range(3):
+                d = rest_x[q, a] - rest_x[p, a]
+                r2 += d * d
+            k += (particle_coef[p] + particle_coef[q]) * (1.0 - math.sqrt(r2) / delta) * particle_volume[q] / r2
+        k *= body_modulus[body]
+        out[p] = math.sqrt(2.0 * body_density[body] / k) if k > 0.0 else np.inf

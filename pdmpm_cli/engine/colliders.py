@@ -1,0 +1,153 @@
+"""Kinematic level-set colliders (plane, box, sphere, cylinder) and the Stomakhin et al. 2013 response.
+
+Each collider is one row of a float64 table so a kernel can loop over them without objects:
+  0 kind | 1-3 point/centre | 4-6 normal, box half-size or cylinder axis | 7 radius | 8 half height |
+  9 sign (+1, or -1 inside-out) | 10-12 velocity | 13 boundary (0 sticky, 1 slip, 2 separate) | 14 friction
+The collider moves with constant velocity: its centre at time t is centre + velocity t.
+"""
+
+import math
+
+import numpy as np
+from numba import njit
+
+PLANE, BOX, SPHERE, CYLINDER = 0, 1, 2, 3
+STICKY, SLIP, SEPARATE = 0, 1, 2
+BOUNDARY_CODES = {"sticky": STICKY, "slip": SLIP, "separate": SEPARATE}
+ROW = 15
+
+
+def _unit(v):
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)
+
+
+def collider_table(colliders) -> np.ndarray:
+    """Pack validated scene colliders into the (n, ROW) table the kernels read."""
+    table = np.zeros((len(colliders), ROW))
+    for i, c in enumerate(colliders):
+        row = table[i]
+        row[9] = -1.0 if getattr(c, "inside_out", False) else 1.0
+        row[10:13] = c.velocity
+        row[13] = BOUNDARY_CODES[c.boundary]
+        row[14] = c.friction
+        if c.type == "plane":
+            row[0], row[1:4], row[4:7] = PLANE, c.point, _unit(c.normal)
+        elif c.type == "box":
+            row[0], row[1:4], row[4:7] = BOX, c.center, 0.5 * np.asarray(c.size)
+        elif c.type == "sphere":
+            row[0], row[1:4], row[7] = SPHERE, c.center, c.radius
+        else:
+            row[0], row[1:4], row[4:7] = CYLINDER, c.center, _unit(c.axis)
+            row[7], row[8] = c.radius, 0.5 * c.height
+    return table
+
+
+@njit(cache=True)
+def signed_distance(row, x0, x1, x2, t, n):
+    """Signed distance of point x to collider `row` at time t (negative inside); writes the unit normal to n."""
+    p0 = x0 - (row[1] + row[10] * t)
+    p1 = x1 - (row[2] + row[11] * t)
+    p2 = x2 - (row[3] + row[12] * t)
+    kind = int(row[0])
+    if kind == PLANE:
+        n[0], n[1], n[2] = row[4], row[5], row[6]
+        phi = p0 * n[0] + p1 * n[1] + p2 * n[2]
+    elif kind == SPHERE:
+        r = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+        if r > 0.0:
+            n[0], n[1], n[2] = p0 / r, p1 / r, p2 / r
+        else:
+            n[0], n[1], n[2] = 0.0, 1.0, 0.0
+        phi = r - row[7]
+    elif kind == BOX:
+        q0 = abs(p0) - row[4]
+        q1 = abs(p1) - row[5]
+        q2 = abs(p2) - row[6]
+        o0, o1, o2 = max(q0, 0.0), max(q1, 0.0), max(q2, 0.0)
+        out = math.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
+        if out > 0.0:
+            n[0] = math.copysign(o0 / out, p0)
+            n[1] = math.copysign(o1 / out, p1)
+            n[2] = math.copysign(o2 / out, p2)
+            phi = out
+        else:
+            n[0], n[1], n[2] = 0.0, 0.0, 0.0
+            if q0 >= q1 and q0 >= q2:
+                n[0], phi = math.copysign(1.0, p0), q0
+            elif q1 >= q2:
+                n[1], phi = math.copysign(1.0, p1), q1
+            else:
+                n[2], phi = math.copysign(1.0, p2), q2
+    else:
+        a0, a1, a2 = row[4], row[5], row[6]
+        y = p0 * a0 + p1 * a1 + p2 * a2
+        r0, r1, r2 = p0 - y * a0, p1 - y * a1, p2 - y * a2
+        r = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+        if r > 0.0:
+            r0, r1, r2 = r0 / r, r1 / r, r2 / r
+        else:
+            r0, r1, r2 = 0.0, 0.0, 0.0
+        dr = r - row[7]
+        dy = abs(y) - row[8]
+        sy = math.copysign(1.0, y)
+        if dr > 0.0 and dy > 0.0:
+            d = math.sqrt(dr * dr + dy * dy)
+            n[0] = (dr * r0 + dy * sy * a0) / d
+            n[1] = (dr * r1 + dy * sy * a1) / d
+            n[2] = (dr * r2 + dy * sy * a2) / d
+            phi = d
+        elif dr > dy:
+            n[0], n[1], n[2] = r0, r1, r2
+            phi = dr
+        else:
+            n[0], n[1], n[2] = sy * a0, sy * a1, sy * a2
+            phi = dy
+    s = row[9]
+    n[0] *= s
+    n[1] *= s
+    n[2] *= s
+    return phi * s
+
+
+@njit(cache=True)
+def respond(v, vc0, vc1, vc2, n, boundary, friction):
+    """Project velocity v (in place) against a surface with normal n moving at vc (Stomakhin 2013, sec. 8)."""
+    r0, r1, r2 = v[0] - vc0, v[1] - vc1, v[2] - vc2
+    if boundary == STICKY:
+        r0, r1, r2 = 0.0, 0.0, 0.0
+    else:
+        vn = r0 * n[0] + r1 * n[1] + r2 * n[2]
+        if boundary == SEPARATE and vn >= 0.0:
+            return
+        t0, t1, t2 = r0 - vn * n[0], r1 - vn * n[1], r2 - vn * n[2]
+        tn = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        drop = friction * abs(vn)
+        if tn <= drop:
+            r0, r1, r2 = 0.0, 0.0, 0.0
+        elif drop > 0.0:
+            s = 1.0 - drop / tn
+            r0, r1, r2 = t0 * s, t1 * s, t2 * s
+        else:
+            r0, r1, r2 = t0, t1, t2
+    v[0], v[1], v[2] = r0 + vc0, r1 + vc1, r2 + vc2
+
+
+@njit(cache=True)
+def collide_all(table, x0, x1, x2, t, v, n):
+    """Apply every collider whose level set is <= 0 at x to the velocity v (in place)."""
+    for c in range(table.shape[0]):
+        row = table[c]
+        if signed_distance(row, x0, x1, x2, t, n) <= 0.0:
+            respond(v, row[10], row[11], row[12], n, int(row[13]), row[14])
+
+
+@njit(cache=True)
+def push_out(table, x, t, n):
+    """Move point x (in place) out of any collider it penetrates, to the surface along the normal."""
+    for c in range(table.shape[0]):
+        phi = signed_distance(table[c], x[0], x[1], x[2], t, n)
+        if phi < 0.0:
+            x[0] -= phi * n[0]
+            x[1] -= phi * n[1]
+            x[2] -= phi * n[2]

@@ -1,0 +1,168 @@
+"""Explicit MPM step with peridynamic bond forces (paper section 3) and the frame loop around it."""
+
+import time
+from collections import defaultdict
+
+import numpy as np
+
+from pdmpm_cli.engine.bonds import averaged_deformation
+from pdmpm_cli.engine.materials import MATERIALS
+from pdmpm_cli.engine.model import Model, State
+from pdmpm_cli.engine.transfer import p2g, grid_update, g2p
+from pdmpm_cli.errors import SimulationError
+from pdmpm_cli.plan import Plan
+
+RUNAWAY_FACTOR = 10.0  # kinetic energy above this multiple of the energy budget is a blow-up
+
+
+class Solver:
+    """Runs the Plan's phases on a State; one method per phase, each one jitted kernel."""
+
+    def __init__(self, model: Model, plan: Plan):
+        self.model = model
+        self.plan = plan
+        self.vmax = 0.0
+        self.energy_budget = 0.0
+        self.phase_time = defaultdict(float)  # wall seconds spent in each phase, for benchmarks
+
+    # ---- phases
+    def fbar(self, state: State, dt: float = 0.0):
+        m = self.model
+        averaged_deformation(state.particle_x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr,
+                             m.particle_body, m.body_horizon, m.particle_Kinv, state.particle_Fbar)
+
+    def bonds(self, state: State, model_name: str):
+        m = self.model
+        kernel = MATERIALS[model_name].forces
+        fbar = state.particle_Fbar if len(state.particle_Fbar) else np.zeros((1, 3, 3))
+        for (start, end), mat, delta in zip(m.body_ranges, m.materials, m.body_horizon):
+            if mat.model == model_name and end > start:
+                kernel(start, end, mat.lam, mat.mu, delta, state.particle_x, m.rest_x, m.particle_volume,
+                       m.bond_start, m.bond_nbr, m.particle_coef, fbar, state.particle_force)
+
+    def node_box(self, state: State) -> np.ndarray:
+        """Node index box [i0, i1) x [j0, j1) x [k0, k1) touched by the particles' B-spline stencils."""
+        m = self.model
+        lo = np.floor((state.particle_x.min(axis=0) - m.origin) / m.dx).astype(np.int64) - 2
+        hi = np.floor((state.particle_x.max(axis=0) - m.origin) / m.dx).astype(np.int64) + 4
+        shape = np.asarray(m.grid_shape)
+        lo = np.clip(lo, 0, shape)
+        hi = np.clip(hi, 0, shape)
+        return np.array([lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]], dtype=np.int64)
+
+    def step_size(self) -> float:
+        """dt = min(dt_max, cfl dx / (c + |v|max)) (METHOD.md section 6)."""
+        p = self.plan
+        return min(p.dt_max, p.dt_cfl * p.wave_speed / (p.wave_speed + self.vmax))
+
+    def p2g(self, state: State, dt: float):
+        m = self.model
+        self.box = self.node_box(state)
+        outside = p2g(state.particle_x, state.particle_v, state.particle_C, m.particle_mass, state.particle_force,
+                      dt, m.origin, 1.0 / m.dx, self.box, state.grid_private, state.grid)
+        if outside:
+            self.fail_outside(state)
+
+    def grid_update(self, state: State, dt: float):
+        m = self.model
+        grid_update(state.grid, dt, m.gravity, m.origin, m.dx, self.box, state.time + dt, m.colliders,
+                    m.wall_boundary, m.wall_friction)
+
+    def g2p(self, state: State, dt: float):
+        m = self.model
+        self.vmax, bad = g2p(state.grid, dt, m.origin, 1.0 / m.dx, state.time + dt, m.colliders, m.pin_mask,
+                             m.pin_velocity, state.particle_x, state.particle_v, state.particle_C)
+        if bad:
+            self.fail_nonfinite(state)
+
+    def substep(self, state: State, dt: float):
+        """One explicit step: the Plan's phases in order, each timed."""
+        for phase in self.plan.phases:
+            t0 = time.perf_counter()
+            if phase.startswith("bonds:"):
+                self.bonds(state, phase[6:])
+            else:
+                getattr(self, phase)(state, dt)
+            self.phase_time[phase] += time.perf_counter() - t0
+        state.step += 1
+        state.time += dt
+
+    def advance(self, state: State, t_end: float, on_substep=None):
+        """Substep until state.time reaches t_end exactly; the last step is shortened to land on it."""
+        while state.time < t_end - 1e-12 * max(1.0, t_end):
+            dt = min(self.step_size(), t_end - state.time)
+            self.substep(state, dt)
+            if on_substep is not None:
+                on_substep(state, dt)
+        self.check_energy(state)
+
+    # ---- diagnostics
+    def kinetic_energy(self, state: State) -> float:
+        return 0.5 * float(np.dot(self.model.particle_mass, np.einsum("ij,ij->i", state.particle_v,
+                                                                      state.particle_v)))
+
+    def angular_momentum(self, state: State, about) -> np.ndarray:
+        """Total angular momentum [kg m^2/s]: particles plus the APIC affine part m_p (dx^2/3) eps_ijk C_kj,
+        which APIC transfers conserve together (Jiang et al. 2015)."""
+        m = self.model.particle_mass
+        r = state.particle_x - np.asarray(about)
+        lin = (m[:, None] * np.cross(r, state.particle_v)).sum(axis=0)
+        c = np.einsum("p,pkj->kj", m, state.particle_C) * (self.model.dx**2 / 3.0)
+        return lin + np.array([c[2, 1] - c[1, 2], c[0, 2] - c[2, 0], c[1, 0] - c[0, 1]])
+
+    def strain_energy(self, state: State) -> float:
+        """Total strain energy of all bodies [J] (eq. 5 with the calibration)."""
+        m = self.model
+        if "fbar" in self.plan.phases:
+            self.fbar(state)
+        fbar = state.particle_Fbar if len(state.particle_Fbar) else np.zeros((1, 3, 3))
+        total = 0.0
+        for (start, end), mat, delta in zip(m.body_ranges, m.materials, m.body_horizon):
+            total += MATERIALS[mat.model].energy(start, end, mat.lam, mat.mu, delta, state.particle_x, m.rest_x, m.particle_volume,
+                                                 m.bond_start, m.bond_nbr, m.particle_coef, fbar)
+        return total
+
+    def start(self, state: State):
+        """Set the energy budget the runaway check measures against [J]: what gravity (over the domain's
+        largest extent), the colliders' motion and the initial motion can legitimately supply."""
+        m = self.model
+        extent = float(np.max(np.asarray(self.plan.grid_nodes) - 1) * m.dx)
+        v_coll = float(np.abs(m.colliders[:, 10:13]).max()) if len(m.colliders) else 0.0
+        mass = float(m.particle_mass.sum())
+        self.energy_budget = self.kinetic_energy(state) + mass * (np.linalg.norm(m.gravity) * extent + v_coll**2)
+        self.energy_budget += self.strain_energy(state) + 1e-12 * mass
+
+    def check_energy(self, state: State):
+        ke = self.kinetic_energy(state)
+        limit = RUNAWAY_FACTOR * self.energy_budget
+        if ke > limit:
+            fastest = np.argsort(np.einsum("ij,ij->i", state.particle_v, state.particle_v))[-5:][::-1]
+            raise SimulationError(
+                f"runaway energy after step {state.step} (t = {state.time:.6g} s): kinetic energy {ke:.4g} J exceeds "
+                f"{RUNAWAY_FACTOR:g}x what gravity, colliders and the initial motion can supply ({limit:.4g} J); "
+                f"fastest particles {fastest.tolist()} at speed "
+                f"{np.linalg.norm(state.particle_v[fastest[0]]):.4g} m/s. "
+                f"Lower simulation.cfl or simulation.bond_safety (now {self.plan.dt_max:.3g} s max step)"
+            )
+
+    def fail_nonfinite(self, state: State):
+        bad = np.flatnonzero(~np.isfinite(state.particle_x).all(axis=1) | ~np.isfinite(state.particle_v).all(axis=1))
+        raise SimulationError(
+            f"NaN or infinite values at step {state.step + 1} (t = {state.time:.6g} s) in {len(bad)} particles "
+            f"(first: {bad[:8].tolist()}). The step became unstable: lower simulation.cfl or "
+            f"simulation.bond_safety, or set a smaller simulation.dt (max step now {self.plan.dt_max:.3g} s)"
+        )
+
+    def fail_outside(self, state: State):
+        m = self.model
+        nodes = np.asarray(m.grid_shape)
+        f = (state.particle_x - m.origin) / m.dx
+        bad = np.flatnonzero(~((f >= 1.0) & (f < nodes - 3)).all(axis=1))
+        cells_per_step = np.linalg.norm(state.particle_v[bad], axis=1).max() * self.plan.dt_max / m.dx
+        hint = (f"they move {cells_per_step:.2g} cells per step, so the step is unstable: lower simulation.cfl or "
+                f"simulation.bond_safety, or set a smaller simulation.dt" if cells_per_step > 1.0 else
+                "enlarge grid.domain, or check initial velocities and collider motion")
+        raise SimulationError(
+            f"{len(bad)} particles left the simulation domain at step {state.step + 1} (t = {state.time:.6g} s), "
+            f"first {bad[:8].tolist()} at {np.round(state.particle_x[bad[0]], 4).tolist()}; {hint}"
+        )

@@ -1,0 +1,116 @@
+"""The Plan: what a scene will run and allocate, decided once before any step.
+
+It lists the phases of a step (a phase a scene does not need is absent, not skipped at run time), the
+arrays each one needs, the time-step bounds and the counts. `pdmpm validate --explain` prints it and the
+HDF5 output stores it.
+"""
+
+import math
+from dataclasses import asdict, dataclass
+
+import numba
+import numpy as np
+
+from pdmpm_cli.engine.bonds import bond_time_steps
+from pdmpm_cli.engine.discretize import Discretization
+from pdmpm_cli.engine.materials import MATERIALS
+from pdmpm_cli.engine.model import Model
+from pdmpm_cli.scene.schema import Scene
+
+
+@dataclass(frozen=True)
+class BodyPlan:
+    name: str
+    model: str
+    particles: int
+    bonds: int
+    spacing: float  # h [m]
+    horizon: float  # delta [m]
+    effective: dict  # effective isotropic constants of the calibration [Pa, -, m/s]
+    dt_bond: float  # bond bound, before the safety factor [s]
+
+
+@dataclass(frozen=True)
+class Plan:
+    phases: tuple[str, ...]
+    fields: dict  # name -> shape of every per-particle or grid array the run allocates
+    bodies: tuple[BodyPlan, ...]
+    particles: int
+    bonds: int
+    grid_nodes: tuple[int, int, int]
+    cell_size: float
+    frames: int
+    frame_dt: float
+    dt_user: float | None
+    dt_cfl: float  # cfl dx / wave speed, at rest [s]
+    dt_bond: float  # bond_safety * min over particles of the bond bound [s]
+    dt_max: float  # the largest step the solver will take [s]
+    dt_reduced: bool  # the user's dt was above a bound and was reduced
+    wave_speed: float  # fastest P-wave speed over bodies [m/s]
+    memory_bytes: int
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def warnings(self) -> list[str]:
+        if not self.dt_reduced:
+            return []
+        return [
+            f"simulation.dt = {self.dt_user:.3g} s is above the stability bound; using {self.dt_max:.3g} s "
+            f"(CFL bound {self.dt_cfl:.3g} s, bond bound {self.dt_bond:.3g} s)"
+        ]
+
+
+def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
+    """Decide phases, arrays and time-step bounds for a discretised scene."""
+    sim = scene.simulation
+    mats = [b.material for b in scene.bodies]
+    need_fbar = any(MATERIALS[m.model].needs_fbar and m.mu > 0 for m in mats)
+    modulus = np.array([m.lam + 2 * m.mu for m in mats])
+    density = np.array([m.density for m in mats])
+    dt_p = np.empty(disc.n_particles)
+    bond_time_steps(disc.rest_x, disc.volume, disc.bond_start, disc.bond_nbr, disc.body, disc.body_horizon,
+                    modulus, density, model.particle_coef, dt_p)
+    bodies = []
+    for i, (body, (s, e)) in enumerate(zip(scene.bodies, disc.body_ranges)):
+        m = body.material
+        bodies.append(BodyPlan(
+            name=body.name, model=m.model, particles=e - s,
+            bonds=int(disc.bond_start[e] - disc.bond_start[s]),
+            spacing=float(disc.body_spacing[i]), horizon=float(disc.body_horizon[i]),
+            effective=MATERIALS[m.model].effective_constants(m.lam, m.mu, m.density),
+            dt_bond=float(dt_p[s:e].min()) if e > s else math.inf,
+        ))
+    wave = max(b.effective["wave_speed"] for b in bodies)
+    dt_cfl = sim.cfl * scene.grid.cell_size / wave
+    dt_bond = sim.bond_safety * min(b.dt_bond for b in bodies)
+    frame_dt = 1.0 / sim.fps
+    dt_max = min(dt_cfl, dt_bond, frame_dt)
+    reduced = sim.dt is not None and sim.dt > dt_max * (1 + 1e-12)
+    if sim.dt is not None:
+        dt_max = min(dt_max, sim.dt)
+    phases = ["fbar"] if need_fbar else []
+    phases += [f"bonds:{m}" for m in dict.fromkeys(b.model for b in bodies)]
+    phases += ["p2g", "grid_update", "g2p"]
+    n, nodes = disc.n_particles, model.grid_shape
+    fields = {
+        "particle_x": (n, 3), "particle_v": (n, 3), "particle_C": (n, 3, 3), "particle_force": (n, 3),
+        "rest_x": (n, 3), "particle_volume": (n,), "particle_mass": (n,), "particle_body": (n,),
+        "particle_Kinv": (n, 3, 3), "particle_coef": (n,), "particle_omega": (n,),
+        "bond_start": (n + 1,), "bond_nbr": (disc.n_bonds,),
+        "grid": nodes + (4,), "grid_private": (numba.get_num_threads(),) + nodes + (4,),
+    }
+    if need_fbar:
+        fields["particle_Fbar"] = (n, 3, 3)
+    if len(disc.pin_mask):
+        fields["pin_mask"] = (n,)
+        fields["pin_velocity"] = (n, 3)
+    memory = sum(int(np.prod(s)) * (4 if k in ("bond_nbr", "particle_body") else 1 if k == "pin_mask" else 8)
+                 for k, s in fields.items())
+    return Plan(
+        phases=tuple(phases), fields=fields, bodies=tuple(bodies), particles=n, bonds=disc.n_bonds,
+        grid_nodes=nodes, cell_size=scene.grid.cell_size,
+        frames=max(1, int(round(sim.duration * sim.fps))), frame_dt=frame_dt, dt_user=sim.dt,
+        dt_cfl=dt_cfl, dt_bond=dt_bond, dt_max=dt_max, dt_reduced=reduced, wave_speed=wave, memory_bytes=memory,
+    )
+

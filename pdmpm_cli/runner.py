@@ -1,0 +1,131 @@
+"""Scene file -> Plan -> Model/State -> frames on disk. The CLI's `run` and `validate` call this."""
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from pdmpm_cli.engine.discretize import Discretization, discretize
+from pdmpm_cli.engine.model import Model, State
+from pdmpm_cli.engine.solver import Solver
+from pdmpm_cli.errors import InputError
+from pdmpm_cli.plan import Plan, make_plan
+from pdmpm_cli.scene.loader import load_scene
+from pdmpm_cli.scene.schema import Scene
+
+
+@dataclass
+class Prepared:
+    """Everything known before the first step."""
+
+    path: Path
+    scene: Scene
+    text: str
+    disc: Discretization
+    model: Model
+    plan: Plan
+
+
+def prepare(path, overrides=()) -> Prepared:
+    """Load and validate the scene file, discretise it, and make the Plan."""
+    path = Path(path)
+    scene, text = load_scene(path, Scene, list(overrides))
+    return prepare_scene(scene, path, text)
+
+
+def prepare_scene(scene: Scene, path: Path, text: str = "") -> Prepared:
+    """Discretise a validated scene (relative mesh paths resolve beside `path`) and make the Plan."""
+    disc = discretize(scene, Path(path).parent)
+    model = Model.build(scene, disc)
+    return Prepared(Path(path), scene, text, disc, model, make_plan(scene, disc, model))
+
+
+class Reporter(Protocol):
+    """Receives progress; the CLI implements it with rich. Library code prints nothing."""
+
+    def start(self, plan: Plan) -> None: ...
+    def substep(self, state: State, dt: float) -> None: ...
+    def frame(self, index: int, state: State) -> None: ...
+
+
+def static_fields(model: Model) -> dict[str, np.ndarray]:
+    fields = {
+        "particle_X": model.rest_x,
+        "particle_volume": model.particle_volume,
+        "particle_mass": model.particle_mass,
+        "particle_body": model.particle_body,
+        "particle_bonds": np.diff(model.bond_start).astype(np.int32),
+    }
+    if len(model.pin_mask):
+        fields["particle_pinned"] = model.pin_mask.astype(np.uint8)
+    return fields
+
+
+def frame_fields(state: State, names) -> dict[str, np.ndarray]:
+    """The per-frame fields the scene selected, by name (particle_x always)."""
+    out = {"particle_x": state.particle_x}
+    for name in names:
+        if name == "particle_speed":
+            out[name] = np.linalg.norm(state.particle_v, axis=1)
+        elif name == "particle_Fbar" and not len(state.particle_Fbar):
+            continue
+        else:
+            out[name] = getattr(state, name)
+    return out
+
+
+def prepare_output_dir(out: Path, overwrite: bool):
+    """Refuse to overwrite an earlier run unless asked: nothing already written is lost silently."""
+    if out.exists() and any(out.iterdir()):
+        if not overwrite:
+            raise InputError(f"{out}: output folder is not empty; pass --overwrite to replace it, or choose "
+                             f"another folder with --out")
+        for name in ("run.h5",):
+            (out / name).unlink(missing_ok=True)
+        vtk = out / "vtk"
+        if vtk.is_dir():
+            for f in vtk.iterdir():
+                f.unlink()
+    out.mkdir(parents=True, exist_ok=True)
+
+
+def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwrite: bool = False) -> State:
+    """Run the whole scene, writing frame 0 (the initial state) and every frame after it."""
+    from pdmpm_cli.io.hdf5 import Hdf5RunWriter
+    from pdmpm_cli.io.sink import FrameSink
+    from pdmpm_cli.io.vtk import VtkSeriesWriter
+
+    scene, plan, model = prep.scene, prep.plan, prep.model
+    prepare_output_dir(out, overwrite)
+    state = State.allocate(model, prep.disc, "fbar" in plan.phases)
+    solver = Solver(model, plan)
+    solver.start(state)
+    static = static_fields(model)
+    writers = []
+    if scene.output.hdf5:
+        writers.append(Hdf5RunWriter(out / "run.h5", scene_text=prep.text, plan=json.loads(json.dumps(
+            plan.to_dict(), default=_jsonable)), static=static, compression=scene.output.compression))
+    if scene.output.vtk:
+        writers.append(VtkSeriesWriter(out / "vtk", static=static))
+    if reporter:
+        reporter.start(plan)
+    on_substep = reporter.substep if reporter else None
+    with FrameSink(writers) as sink:
+        sink.submit(0, 0.0, frame_fields(state, scene.output.fields))
+        for f in range(1, plan.frames + 1):
+            solver.advance(state, f * plan.frame_dt, on_substep)
+            sink.submit(f, state.time, frame_fields(state, scene.output.fields))
+            if reporter:
+                reporter.frame(f, state)
+    return state
+
+
+def _jsonable(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, float) and math.isinf(o):
+        return "inf"
+    raise TypeError(type(o))

@@ -1,0 +1,428 @@
+"""Load a YAML scene file into a pydantic model, reporting every problem as `file:line:col key: message`.
+
+Generic over the model class: all knowledge of the schema comes from pydantic's errors and `model_fields`.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import os
+import re
+import types
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Literal, TypeVar, Union, get_args, get_origin
+
+import yaml
+from pydantic import BaseModel, ValidationError
+
+from pdmpm_cli.errors import InputError
+
+OVERRIDE = "--set"
+_SET_FORM = "expected KEY=VALUE, e.g. --set bodies.0.material.E=2e5"
+_FLOAT, _BOOL = "tag:yaml.org,2002:float", "tag:yaml.org,2002:bool"
+_SEQUENCES = (list, tuple, set, frozenset, Sequence)
+
+DataPath = tuple[Union[str, int], ...]  # str keys into mappings, int indices into lists
+Mark = tuple[int, int]  # (line, col), 1-based
+M = TypeVar("M", bound=BaseModel)
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One thing wrong with the input, pointing at where the user can fix it."""
+
+    file: str
+    line: int | None
+    col: int | None
+    key: str
+    message: str
+
+    def __str__(self) -> str:
+        where = self.file if self.line is None else f"{self.file}:{self.line}:{self.col}"
+        return f"{where} {self.key}: {self.message}" if self.key else f"{where}: {self.message}"
+
+
+class SceneError(InputError):
+    """Every problem found in the scene and its overrides, so the user can fix them all in one go."""
+
+    def __init__(self, problems: list[Problem]):
+        self.problems = list(problems)
+        super().__init__("\n".join(map(str, self.problems)))
+
+
+def _fail(file: str, message: str, key: str = "", mark: Mark | None = None) -> SceneError:
+    return SceneError([Problem(file, *(mark or (None, None)), key, message)])
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader with YAML 1.2 floats and booleans.
+
+    PyYAML follows YAML 1.1, where `1e5` is a string (only `1.0e+5` is a float) and `no`/`on`/`yes`
+    are booleans (so `name: no` would become False). Here every float a user writes is a float and
+    only true/false are booleans; pydantic still accepts "yes"/"on" for boolean fields.
+    """
+
+    yaml_implicit_resolvers = {
+        ch: [r for r in rs if r[0] not in (_FLOAT, _BOOL)]
+        for ch, rs in yaml.SafeLoader.yaml_implicit_resolvers.items()
+    }
+
+
+_Loader.add_implicit_resolver(_BOOL, re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"), list("tTfF"))
+
+_Loader.add_implicit_resolver(
+    _FLOAT,
+    re.compile(
+        r"""^(?:[-+]?[0-9][0-9_]*\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+        |[-+]?\.[0-9][0-9_]*(?:[eE][-+]?[0-9]+)?
+        |[-+]?[0-9][0-9_]*[eE][-+]?[0-9]+
+        |[-+]?[0-9][0-9_]*(?::[0-5]?[0-9])+\.[0-9_]*
+        |[-+]?\.(?:inf|Inf|INF)
+        |\.(?:nan|NaN|NAN))$""",
+        re.X,
+    ),
+    list("-+0123456789."),
+)
+
+
+def _dotted(path) -> str:
+    return ".".join(map(str, path))
+
+
+def _pos(node: yaml.Node) -> Mark:
+    return node.start_mark.line + 1, node.start_mark.column + 1
+
+
+def _did_you_mean(word: Any, options: list[str]) -> str:
+    close = difflib.get_close_matches(str(word), options, n=1)
+    return f"did you mean {close[0]}?" if close else ""
+
+
+# ---------------------------------------------------------------- YAML -> data with positions
+
+
+class _Tree:
+    """Plain data built from the YAML node tree, remembering where every key and value was written.
+
+    `marks[path]` is a scalar's position, or for a mapping/list the position of the key naming it
+    (that line reads best in a message); `key_marks[path]` is the key's position.
+    """
+
+    def __init__(self, file: str, text: str):
+        self.file, self.marks, self.key_marks = file, {}, {}
+        self.problems: list[Problem] = []
+        self._open: set[int] = set()
+        try:
+            self._loader = _Loader(text)
+            root = self._loader.get_single_node()
+        except yaml.MarkedYAMLError as e:
+            msg = f"invalid YAML: {e.problem}"
+            if e.context and e.context_mark:
+                msg += f" ({e.context} on line {e.context_mark.line + 1})"
+            if "'\\t'" in str(e.problem):
+                msg += "; indent with spaces, not tabs"
+            raise _fail(file, msg, mark=(e.problem_mark.line + 1, e.problem_mark.column + 1)) from None
+        except yaml.YAMLError as e:  # the reader's errors (control characters) carry only an offset
+            at = getattr(e, "position", None)
+            mark = None if at is None else (text.count("\n", 0, at) + 1, at - text.rfind("\n", 0, at))
+            raise _fail(file, f"invalid YAML: {str(e).splitlines()[0]}", mark=mark) from None
+        self._loader.dispose()
+        if root is None:
+            raise _fail(file, "file is empty (expected a mapping of scene settings, e.g. 'bodies:')")
+        if not isinstance(root, yaml.MappingNode):
+            kind = "a list" if isinstance(root, yaml.SequenceNode) else f"the value {root.value!r}"
+            raise _fail(file, f"top level must be a mapping of keys (e.g. 'bodies:'), found {kind}", mark=_pos(root))
+        self.data = self._build(root, ())
+        if self.problems:
+            raise SceneError(self.problems)
+
+    def _problem(self, path: DataPath, mark: Mark, message: str) -> None:
+        self.problems.append(Problem(self.file, *mark, _dotted(path), message))
+
+    def _build(self, node: yaml.Node, path: DataPath) -> Any:
+        if id(node) in self._open:
+            return self._problem(path, _pos(node), "alias refers to itself")
+        if isinstance(node, yaml.ScalarNode):
+            try:
+                return self._loader.construct_object(node)
+            except (yaml.YAMLError, ValueError) as e:
+                problem = getattr(e, "problem", e)
+                return self._problem(path, _pos(node), f"cannot read value {node.value!r}: {problem}")
+        self._open.add(id(node))
+        if isinstance(node, yaml.SequenceNode):
+            out: Any = []
+            for i, item in enumerate(node.value):
+                self.marks[path + (i,)] = _pos(item)
+                out.append(self._build(item, path + (i,)))
+        else:
+            out = {}
+            for knode, vnode in node.value:
+                if knode.tag == "tag:yaml.org,2002:merge" or not isinstance(knode, yaml.ScalarNode):
+                    self._problem(path, _pos(knode), "keys must be plain names (merge keys '<<' are not supported)")
+                    continue
+                sub = path + (knode.value,)
+                if knode.value in out:
+                    self._problem(sub, _pos(knode), f"duplicate key (first written on line {self.key_marks[sub][0]})")
+                    continue
+                self.key_marks[sub] = _pos(knode)
+                self.marks[sub] = _pos(vnode if isinstance(vnode, yaml.ScalarNode) else knode)
+                out[knode.value] = self._build(vnode, sub)
+        self._open.discard(id(node))
+        return out
+
+    def where(self, path: DataPath, key: bool = False) -> Mark | None:
+        """Position of `path` (of its key if `key`), else of the nearest enclosing thing the file has."""
+        if key and path in self.key_marks:
+            return self.key_marks[path]
+        for i in range(len(path), 0, -1):
+            if path[:i] in self.marks:
+                return self.marks[path[:i]]
+        return None
+
+
+# ---------------------------------------------------------------- overrides
+
+
+def parse_overrides(items: list[str]) -> list[tuple[list[str | int], object]]:
+    """Parse `a.b.0.c=value` items; the value is YAML (`1e5`, `[1, 2, 3]`, `{model: elastic}`)."""
+    out, problems = [], []
+    for item in items:
+        key, sep, text = item.partition("=")
+        segs = key.strip().split(".")
+        if not sep or not all(segs):
+            problems.append(Problem(OVERRIDE, None, None, "", f"malformed override {item!r} ({_SET_FORM})"))
+            continue
+        try:
+            value = yaml.load(text, Loader=_Loader)
+        except yaml.YAMLError as e:
+            message = f"cannot read value {text!r} as YAML: {getattr(e, 'problem', e)}"
+            problems.append(Problem(OVERRIDE, None, None, key.strip(), message))
+            continue
+        out.append(([int(s) if re.fullmatch(r"[0-9]+", s) else s for s in segs], value))
+    if problems:
+        raise SceneError(problems)
+    return out
+
+
+def _apply(data: dict, keys: list[str | int], value: object) -> DataPath:
+    """Set one override, creating missing mappings on the way; return the path it set."""
+    node, path, key = data, (), _dotted(keys)
+    for i, seg in enumerate(keys):
+        if isinstance(node, list):
+            if not isinstance(seg, int):
+                raise _fail(OVERRIDE, f"{_dotted(path)} is a list; use an item number, e.g. {_dotted(path)}.0", key)
+            if seg >= len(node):
+                raise _fail(OVERRIDE, f"index {seg} is past the end of {_dotted(path)} (it has {len(node)} items)", key)
+        elif isinstance(node, dict):
+            seg = str(seg)
+        else:
+            raise _fail(OVERRIDE, f"{_dotted(path)} is {node!r}, not a mapping or list", key)
+        path += (seg,)
+        if i == len(keys) - 1:
+            node[seg] = value
+        else:
+            if isinstance(node, dict) and node.get(seg) is None:
+                node[seg] = {}
+            node = node[seg]
+    return path
+
+
+# ---------------------------------------------------------------- walking the model's annotations
+
+
+def _is_model(tp: Any) -> bool:
+    return isinstance(tp, type) and issubclass(tp, BaseModel)
+
+
+def _disc_name(d: Any) -> str | None:
+    """The field name of a `Field(discriminator=...)` / `Discriminator(...)`; None for callables."""
+    d = getattr(d, "discriminator", d)
+    return d if isinstance(d, str) else None
+
+
+def _unwrap(tp: Any, disc: str | None = None) -> tuple[Any, str | None]:
+    while get_origin(tp) is Annotated:
+        tp, *meta = get_args(tp)
+        disc = next((d for m in meta if (d := _disc_name(getattr(m, "discriminator", None)))), disc)
+    return tp, disc
+
+
+def _keys(model: type[BaseModel]) -> list[str]:
+    return [f.alias or name for name, f in model.model_fields.items()]
+
+
+def _is_union(tp: Any) -> bool:
+    return get_origin(tp) in (Union, types.UnionType)
+
+
+def _tags(tp: Any, disc: str) -> list[str]:
+    """Allowed discriminator values of a union (or of one model)."""
+    tp, _ = _unwrap(tp)
+    if _is_union(tp):
+        return [t for a in get_args(tp) for t in _tags(a, disc)]
+    field = tp.model_fields.get(disc) if _is_model(tp) else None
+    is_literal = field is not None and get_origin(field.annotation) is Literal
+    return [str(t) for t in get_args(field.annotation)] if is_literal else []
+
+
+def _member(tp: Any, disc: str | None, node: Any) -> Any:
+    """The member of a (possibly Optional or discriminated) union that applies to the data `node`."""
+    tp, disc = _unwrap(tp, disc)
+    if not _is_union(tp):
+        return tp
+    options = [a for a in get_args(tp) if a is not type(None)]
+    if disc and isinstance(node, dict):
+        options = [a for a in options if str(node.get(disc)) in _tags(a, disc)] or options
+    if isinstance(node, dict):
+        models = [a for a in options if _is_model(_unwrap(a)[0])]
+        options = sorted(models, key=lambda m: -len(node.keys() & set(_keys(_unwrap(m)[0])))) or options
+    elif isinstance(node, list):
+        options = [a for a in options if get_origin(_unwrap(a)[0]) in _SEQUENCES] or options
+    return _member(options[0], None, node) if len(options) == 1 or isinstance(node, dict) else None
+
+
+def _tagged(tp: Any, disc: str | None, seg: Any) -> Any:
+    """The union member that pydantic names by `seg` in an error's loc (its tag or class name), else None."""
+    if not _is_union(tp) or not isinstance(seg, str):
+        return None
+    for member in get_args(tp):
+        model = _unwrap(member)[0]
+        if (disc and seg in _tags(model, disc)) or (_is_model(model) and seg == model.__name__):
+            return member
+    return None
+
+
+def _field_type(tp: Any, seg: Any) -> tuple[Any, str | None]:
+    """Annotation (and discriminator) of item `seg` inside a value of type `tp`; (None, None) if unknown."""
+    origin, args = get_origin(tp), get_args(tp)
+    if _is_model(tp):
+        field = next((f for name, f in tp.model_fields.items() if seg in (name, f.alias)), None)
+        return _unwrap(field.annotation, _disc_name(field.discriminator)) if field else (None, None)
+    if origin is tuple and args and args[-1] is not Ellipsis:
+        return _unwrap(args[seg]) if isinstance(seg, int) and seg < len(args) else (None, None)
+    if origin in _SEQUENCES and args:
+        return _unwrap(args[0])
+    if origin in (dict, Mapping) and len(args) == 2:
+        return _unwrap(args[1])
+    return None, None
+
+
+_ABSENT = object()
+
+
+def _walk(model_cls: type[BaseModel], data: Any, loc: tuple, missing: bool = False) -> tuple[DataPath, Any, Any, Any]:
+    """Follow a pydantic `loc` through the data and the annotations.
+
+    Returns (path as written in YAML, annotation and discriminator there, data there). pydantic puts
+    union tags into `loc` (`bodies.0.geometry.box.size`); they pick the member and are left out of the path.
+    """
+    tp, disc, node, path = model_cls, None, data, ()
+    for i, seg in enumerate(loc):
+        tp, disc = _unwrap(tp, disc)
+        if (member := _tagged(tp, disc, seg)) is not None:
+            tp, disc = _unwrap(member)
+            continue
+        if isinstance(node, dict) and seg in node:
+            child = node[seg]
+        elif isinstance(node, list) and type(seg) is int and seg < len(node):
+            child = node[seg]
+        elif missing and i == len(loc) - 1:
+            child = _ABSENT
+        else:
+            continue  # a tag for a union member that is not a model ('float', 'function-after[...]')
+        tp, disc = _field_type(_member(tp, disc, node), seg)
+        path, node = path + (seg,), child
+    return path, tp, disc, node
+
+
+def _show(value: Any) -> str:
+    return json.dumps(value) if value is None or isinstance(value, bool) else repr(value)
+
+
+def _explain(err: dict, model_cls: type[BaseModel], data: Any) -> tuple[DataPath, str, str]:
+    """(path to report, where to point: 'key'/'parent'/'value', plain-words message) for one pydantic error."""
+    kind, got, loc = err["type"], err.get("input"), err["loc"]
+    path, tp, disc, node = _walk(model_cls, data, loc, missing=kind == "missing")
+    if kind == "missing" and path and isinstance(path[-1], int):  # a fixed-length tuple given too few items
+        path, tp, disc, node = _walk(model_cls, data, loc[:-1])
+        tp = _member(tp, disc, node)
+        wanted = f"must have {len(get_args(tp))} items" if get_origin(tp) is tuple else "too few items"
+        return path, "value", f"{wanted} (got {_show(node)})"
+    if kind == "missing":
+        return path, "parent", "missing required key"
+    if kind == "extra_forbidden":
+        model = _member(*_walk(model_cls, data, loc[:-1])[1:])
+        allowed = _keys(model) if _is_model(model) else []
+        hint = _did_you_mean(path[-1], allowed) or (f"allowed keys: {', '.join(allowed)}" if allowed else "")
+        return path, "key", f"unknown key ({hint})" if hint else "unknown key"
+    if kind in ("union_tag_invalid", "union_tag_not_found"):
+        disc = err["ctx"]["discriminator"].strip("'")
+        tags = _tags(tp, disc)
+        expected = f"expected one of: {', '.join(tags)}" if tags else ""
+        if kind == "union_tag_not_found":
+            return path + (disc,), "parent", f"missing {disc}" + (f" ({expected})" if expected else "")
+        tag = err["ctx"]["tag"]
+        hint = "; ".join(h for h in (expected, _did_you_mean(tag, tags)) if h)
+        return path + (disc,), "value", f"unknown {disc} {tag!r}" + (f" ({hint})" if hint else "")
+    msg = err["msg"].removeprefix("Value error, ").removeprefix("Assertion failed, ")
+    msg = "must be " + msg.removeprefix("Input should be ") if msg.startswith("Input should be ") else msg
+    if not isinstance(got, dict) and len(_show(got)) <= 40:
+        extra = [f"got {_show(got)}"]
+        tp = _member(tp, disc, got)
+        if kind == "literal_error" and get_origin(tp) is Literal:
+            extra.append(_did_you_mean(got, [str(a) for a in get_args(tp)]))
+        msg += f" ({'; '.join(e for e in extra if e)})"
+    return path, "value", msg
+
+
+def _problem(err: dict, model_cls: type[BaseModel], tree: _Tree, set_paths: list[DataPath]) -> Problem:
+    """Turn one pydantic error into a Problem located in the file, or at the --set that put the value there."""
+    path, how, message = _explain(err, model_cls, tree.data)
+    anchor = path[:-1] if how == "parent" else path
+    for sp in reversed(set_paths):
+        inside = path[: len(sp)] == sp
+        created = anchor and sp[: len(anchor)] == anchor and anchor not in tree.marks
+        if inside or created:
+            return Problem(OVERRIDE, None, None, _dotted(path), message)
+    if how == "value" and (within := [_dotted(sp) for sp in set_paths if sp[: len(path)] == path]):
+        message += f" (with --set {', '.join(within)})"  # a model's own check may fail because of an override
+    mark = tree.where(anchor, key=how == "key")
+    return Problem(tree.file, *(mark or (None, None)), _dotted(path), message)
+
+
+# ---------------------------------------------------------------- entry point
+
+
+def _read(path: str | os.PathLike, file: str) -> str:
+    try:
+        raw = Path(path).read_bytes()
+    except FileNotFoundError:
+        raise _fail(file, f"file not found (relative paths start from the current directory, {os.getcwd()})") from None
+    except IsADirectoryError:
+        raise _fail(file, "is a directory; give the path of a YAML scene file") from None
+    except OSError as e:
+        raise _fail(file, f"cannot read file: {e.strerror or e}") from None
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        line_start = raw.rfind(b"\n", 0, e.start) + 1
+        mark = (raw.count(b"\n", 0, e.start) + 1, e.start - line_start + 1)
+        raise _fail(file, f"not UTF-8 text (byte 0x{raw[e.start]:02x}); save the file as UTF-8", mark=mark) from None
+
+
+def load_scene(path: str | os.PathLike, model_cls: type[M], overrides: Sequence[str] = ()) -> tuple[M, str]:
+    """Read, parse, override and validate a scene; return (model instance, file text) or raise SceneError."""
+    file = str(path)
+    edits = parse_overrides(list(overrides))
+    text = _read(path, file)
+    tree = _Tree(file, text)
+    set_paths = [_apply(tree.data, keys, value) for keys, value in edits]
+    try:
+        return model_cls.model_validate(tree.data), text
+    except ValidationError as e:
+        problems = {str(p): p for p in (_problem(err, model_cls, tree, set_paths) for err in e.errors())}
+        order = lambda p: (p.file == OVERRIDE, p.line or 0, p.col or 0)  # noqa: E731
+        raise SceneError(sorted(problems.values(), key=order)) from None
