@@ -1,0 +1,153 @@
+"""Filling shapes with material points of spacing ``h`` (metres); each point stands for h**3.
+
+The box [lo, hi] is covered by a cubic lattice of ``n = ceil((hi - lo) / h)`` cells per axis,
+anchored at ``lo`` (cell centres at ``lo + (i + 0.5) h``), with exactly one point per cell:
+
+* ``sampling="lattice"``: the cell centre;
+* ``sampling="jittered"``: a uniformly random point of the cell (stratified sampling: the
+  peridynamic bond families become statistically isotropic, a regular lattice with horizon
+  ~2h is strongly anisotropic), then a minimum separation of ``MIN_SEPARATION * h`` is
+  enforced: pairs closer than that are found with ``scipy.spatial.cKDTree`` and one point of
+  each pair is re-drawn inside its own cell, repeatedly, until no pair remains.
+
+Everything is vectorised; all randomness comes from the ``rng`` argument, so a seeded
+generator reproduces the points exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from pdmpm_cli.errors import InputError, PdmpmError
+
+__all__ = ["SAMPLINGS", "MIN_SEPARATION", "MAX_CELLS", "lattice_points", "fill_shape"]
+
+SAMPLINGS = ("lattice", "jittered")
+#: minimum distance between jittered points, in units of h
+MIN_SEPARATION = 0.5
+#: refuse lattices with more cells than this (memory: 24 bytes per cell, plus temporaries)
+MAX_CELLS = 100_000_000
+#: re-draw rounds before giving up (each round keeps ~30 % of the conflicts; ~10-15 needed)
+MAX_REDRAW_ROUNDS = 200
+
+
+def _check_box(lo, hi, h) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    lo = np.asarray(lo, dtype=np.float64).reshape(-1)
+    hi = np.asarray(hi, dtype=np.float64).reshape(-1)
+    if lo.shape != (3,) or hi.shape != (3,):
+        raise InputError(f"bounds must be two points of 3 coordinates, got lo={lo!r}, hi={hi!r}")
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))) or np.any(hi < lo):
+        raise InputError(f"invalid bounds lo={lo.tolist()}, hi={hi.tolist()} (need finite lo <= hi)")
+    try:
+        h = float(h)
+    except (TypeError, ValueError):
+        raise InputError(f"particle spacing h must be a number, got {h!r}") from None
+    if not (math.isfinite(h) and h > 0.0):
+        raise InputError(f"particle spacing h must be a positive length in metres, got {h!r}")
+    # tolerance so that an extent that is an exact multiple of h (up to rounding) is not padded
+    n = np.maximum(1, np.ceil((hi - lo) / h - 1e-9)).astype(np.int64)
+    total = int(np.prod(n.astype(object)))
+    if total > MAX_CELLS:
+        ext = hi - lo
+        h_min = float((np.prod(ext) / MAX_CELLS) ** (1.0 / 3.0)) if np.all(ext > 0) else h
+        raise InputError(
+            f"particle spacing h={h:g} m over the box {lo.tolist()} .. {hi.tolist()} needs "
+            f"{total:,} lattice cells (limit {MAX_CELLS:,}); use a larger spacing, at least "
+            f"h={h_min:.3g} m"
+        )
+    return lo, hi, h, n
+
+
+def _redraw(pts, idx, cells, lo, h, rng):
+    """Re-draw the points ``idx`` uniformly inside their own cells (in place)."""
+    pts[idx] = lo + (cells[idx] + rng.random((idx.shape[0], 3))) * h
+
+
+def lattice_points(lo, hi, h, *, sampling: str, rng: np.random.Generator) -> np.ndarray:
+    """One point per cell of the cubic lattice of spacing ``h`` covering [lo, hi] -> (n, 3).
+
+    Cells are ordered x-slowest (C order over (ix, iy, iz)). ``sampling`` is "lattice"
+    (cell centres; ``rng`` unused) or "jittered" (random point per cell, min separation
+    ``MIN_SEPARATION * h``).
+    """
+    if sampling not in SAMPLINGS:
+        raise InputError(f"unknown sampling {sampling!r}; use one of: {', '.join(SAMPLINGS)}")
+    lo, hi, h, n = _check_box(lo, hi, h)
+    ix, iy, iz = np.meshgrid(
+        np.arange(n[0], dtype=np.float64),
+        np.arange(n[1], dtype=np.float64),
+        np.arange(n[2], dtype=np.float64),
+        indexing="ij",
+    )
+    cells = np.stack([ix.ravel(), iy.ravel(), iz.ravel()], axis=1)
+    del ix, iy, iz
+    if sampling == "lattice":
+        return lo + (cells + 0.5) * h
+
+    pts = lo + (cells + rng.random(cells.shape)) * h
+    r = MIN_SEPARATION * h
+    # Points of non-adjacent cells are >= h apart, so only neighbouring cells can conflict.
+    # Round 1 checks all pairs. Afterwards only re-drawn ("moved") points change: they are
+    # checked against the unmoved points with the original tree (whose unmoved entries are
+    # still exact) and against each other with a small tree. Unmoved points never move.
+    tree0 = cKDTree(pts, balanced_tree=False, compact_nodes=False)
+    pairs = tree0.query_pairs(r, output_type="ndarray")
+    if pairs.shape[0] == 0:
+        return pts
+    moved = np.zeros(pts.shape[0], dtype=bool)
+    redo = np.unique(pairs.max(axis=1))
+    for _ in range(MAX_REDRAW_ROUNDS):
+        moved[redo] = True
+        _redraw(pts, redo, cells, lo, h, rng)
+        # re-drawn points vs. points that never moved
+        sdm = cKDTree(pts[redo]).sparse_distance_matrix(tree0, r, output_type="ndarray")
+        bad_cross = redo[sdm["i"][~moved[sdm["j"]]]]
+        # moved points among themselves (includes those moved in earlier rounds)
+        m_idx = np.flatnonzero(moved)
+        mp = cKDTree(pts[m_idx]).query_pairs(r, output_type="ndarray")
+        bad_moved = m_idx[mp.max(axis=1)] if mp.shape[0] else np.empty(0, np.int64)
+        redo = np.unique(np.concatenate([bad_cross, bad_moved]))
+        if redo.shape[0] == 0:
+            return pts
+    raise PdmpmError(
+        f"jittered sampling could not reach the minimum separation {MIN_SEPARATION} h after "
+        f"{MAX_REDRAW_ROUNDS} rounds ({redo.shape[0]} points still too close); this should not "
+        'happen, please report it; sampling: "lattice" avoids it'
+    )
+
+
+def fill_shape(
+    inside_fn: Callable[[np.ndarray], np.ndarray],
+    lo,
+    hi,
+    h,
+    *,
+    sampling: str,
+    rng: np.random.Generator,
+    what: str = "shape",
+) -> np.ndarray:
+    """Points (n, 3) of ``lattice_points(lo, hi, h, ...)`` for which ``inside_fn`` is true.
+
+    ``lo, hi`` are the shape's axis-aligned bounds, ``inside_fn(points (m, 3)) -> bool (m,)``.
+    Raises :class:`InputError` (naming ``what``) if no point falls inside, i.e. the shape is
+    too small for the spacing.
+    """
+    pts = lattice_points(lo, hi, h, sampling=sampling, rng=rng)
+    mask = np.asarray(inside_fn(pts), dtype=bool)
+    if mask.shape != (pts.shape[0],):
+        raise ValueError(f"inside_fn returned shape {mask.shape}, expected ({pts.shape[0]},)")
+    if not mask.any():
+        ext = np.asarray(hi, dtype=np.float64) - np.asarray(lo, dtype=np.float64)
+        smallest = float(ext.min())
+        suggestion = smallest / 4.0 if smallest > 0 else float("nan")
+        raise InputError(
+            f"{what}: no particle falls inside it with particle spacing h={float(h):g} m (its "
+            f"bounding box is {' x '.join(f'{e:.3g}' for e in ext)} m); the shape is too small "
+            f"(or too thin) for this spacing: use h <= {suggestion:.3g} m (about 4 particles "
+            "across its thinnest dimension) or make the shape larger"
+        )
+    return pts[mask]

@@ -1,0 +1,355 @@
+"""The pdmpm run file (``run.h5``): one HDF5 file per run, and its public reader.
+
+Other tools read runs with::
+
+    from pdmpm_cli.io.hdf5 import read_run
+
+    run = read_run("outputs/beam/run.h5")
+    run.times                    # (n_frames,) simulation time of each complete frame, seconds
+    run.frame(-1)["particle_x"]  # fields of the last complete frame
+    run.field("particle_speed")  # (n_frames, n) history of one field
+    run.static["particle_mass"]  # fields written once per run
+
+Layout (``format = "pdmpm-run"``, ``format_version = 1``)::
+
+    /                       root attributes:
+                              format, format_version, frames_complete (int),
+                              pdmpm_version, numpy_version, numba_version, h5py_version,
+                              hdf5_version, created (ISO 8601, UTC)
+    /scene_text             scalar UTF-8 string dataset: the scene YAML the run was started from
+    /plan_json              scalar UTF-8 string dataset: ``json.dumps`` of the resolved run plan
+    /static/<name>          one dataset per field written once (particle_X, particle_mass, ...)
+    /frames/time            (n_frames,) float64, simulation time of each frame
+    /frames/<name>          (n_frames, *shape) one dataset per per-frame field (particle_x, ...)
+
+Field names are ``<location>_<quantity>``. Frame datasets hold one frame per chunk (fields under
+64 KiB per frame, such as scalars, pack several frames per chunk; frames over 1 GiB are split
+along the particle axis) and are compressed with lzf or gzip level 1 (plus the shuffle filter for numeric data), or not at all.
+
+Only the first ``frames_complete`` frames are valid: the writer fills every field of a frame and
+``frames/time`` first, then bumps ``frames_complete`` and flushes, so a frame is either counted
+and fully on disk or not counted. The reader also clamps to the shortest frame dataset.
+
+Crash safety: the header and static fields are written and the file closed before the first
+frame, so a run that dies before any frame leaves a clean file with zero frames. At the first
+frame the file is reopened, the frame datasets are created, and the file is switched to HDF5
+SWMR (single-writer / multiple-reader) mode, in which the library orders its metadata writes so
+that the file is consistent for a reader at every instant. A run killed even with SIGKILL thus
+leaves its completed frames readable. Such a file (and one whose run is still going) refuses a
+plain read-only open ("file is already open for write"); open it with
+``h5py.File(path, "r", swmr=True)``, as ``read_run`` does. Frames are flushed to the OS, not
+fsynced: a power loss may still lose the most recent frames. Files use the HDF5 1.10 format
+(readable by HDF5 >= 1.10).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from datetime import datetime, timezone
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from pdmpm_cli import __version__
+from pdmpm_cli.errors import InputError
+
+FORMAT = "pdmpm-run"
+FORMAT_VERSION = 1
+COMPRESSIONS = ("none", "lzf", "gzip")
+
+_LIBVER = ("v110", "v110")  # lowest format that supports SWMR; readable by HDF5 >= 1.10
+_SMALL_CHUNK_BYTES = 64 * 1024  # below this, several frames share a chunk (scalar histories)
+_MAX_CHUNK_BYTES = 1 << 30  # HDF5 caps chunks at 4 GiB; stay well under it
+_HINT = "pass the run.h5 written by `pdmpm run`"
+_CORRUPT_HINT = "the file is truncated or corrupt; re-run the simulation to regenerate it"
+
+
+def _package_version(name: str) -> str:
+    try:
+        return version(name)
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _filter_options(compression: str, dtype: np.dtype) -> dict[str, Any]:
+    """h5py keyword arguments for the requested compression; shuffle helps multi-byte numbers."""
+    if compression == "none":
+        return {}
+    options: dict[str, Any] = {"compression": compression}
+    if compression == "gzip":
+        options["compression_opts"] = 1
+    if dtype.kind in "fiuc" and dtype.itemsize > 1:
+        options["shuffle"] = True
+    return options
+
+
+def _frame_chunks(shape: tuple[int, ...], itemsize: int) -> tuple[int, ...]:
+    """One frame per chunk; several frames for tiny fields, a split particle axis for huge ones."""
+    dims = tuple(max(1, s) for s in shape)
+    frame_bytes = int(np.prod(dims, dtype=np.int64)) * itemsize
+    if frame_bytes < _SMALL_CHUNK_BYTES:
+        return (max(1, _SMALL_CHUNK_BYTES // frame_bytes), *dims)
+    if frame_bytes > _MAX_CHUNK_BYTES:
+        rows = max(1, dims[0] * _MAX_CHUNK_BYTES // frame_bytes)
+        return (1, rows, *dims[1:])
+    return (1, *dims)
+
+
+class Hdf5RunWriter:
+    """Appends frames to one ``run.h5``; every frame counted in ``frames_complete`` survives a crash."""
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        scene_text: str,
+        plan: dict,
+        static: dict[str, np.ndarray],
+        compression: str = "lzf",
+    ) -> None:
+        if compression not in COMPRESSIONS:
+            raise ValueError(f"compression must be one of {COMPRESSIONS}, got {compression!r}")
+        self.path = Path(path)
+        self._compression = compression
+        self._file: h5py.File | None = None
+        self._closed = False
+        self._frames: dict[str, h5py.Dataset] = {}
+        self._shapes: dict[str, tuple[int, ...]] = {}
+        self._n_frames = 0
+        # Closed again right away: until the first frame the file is a clean, readable run with 0 frames.
+        with h5py.File(self.path, "w", libver=_LIBVER) as f:
+            self._write_header(f, scene_text, plan, static)
+
+    def _write_header(self, f: h5py.File, scene_text: str, plan: dict, static: dict[str, np.ndarray]) -> None:
+        f.attrs.update(
+            {
+                "format": FORMAT,
+                "format_version": FORMAT_VERSION,
+                "frames_complete": np.int64(0),
+                "pdmpm_version": __version__,
+                "numpy_version": np.__version__,
+                "numba_version": _package_version("numba"),
+                "h5py_version": h5py.__version__,
+                "hdf5_version": h5py.version.hdf5_version,
+                "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            }
+        )
+        text = h5py.string_dtype("utf-8")
+        f.create_dataset("scene_text", data=scene_text, dtype=text)
+        f.create_dataset("plan_json", data=json.dumps(plan), dtype=text)
+        group = f.create_group("static")
+        for name, value in static.items():
+            array = np.asarray(value)
+            options = _filter_options(self._compression, array.dtype) if array.size else {}
+            group.create_dataset(name, data=array, **options)
+        frames = f.create_group("frames")
+        frames.create_dataset("time", shape=(0,), maxshape=(None,), dtype=np.float64, chunks=(1024,))
+
+    def _open_for_frames(self, fields: dict[str, np.ndarray]) -> h5py.File:
+        """Reopen, create one dataset per field, then enter SWMR mode (no objects can be added after)."""
+        f = h5py.File(self.path, "r+", libver=_LIBVER)
+        try:
+            group = f["frames"]
+            for name, array in fields.items():
+                self._frames[name] = group.create_dataset(
+                    name,
+                    shape=(0, *array.shape),
+                    maxshape=(None, *array.shape),
+                    dtype=array.dtype,
+                    chunks=_frame_chunks(array.shape, array.dtype.itemsize),
+                    **_filter_options(self._compression, array.dtype),
+                )
+                self._shapes[name] = array.shape
+            f.swmr_mode = True
+        except BaseException:
+            self._frames.clear()
+            f.close()
+            raise
+        return f
+
+    def write_frame(self, index: int, time: float, fields: dict[str, np.ndarray]) -> None:
+        """Append frame ``index`` (must equal the number of frames already written)."""
+        if self._closed:
+            raise ValueError(f"{self.path}: writer is closed")
+        if index != self._n_frames:
+            raise ValueError(f"frame index {index} out of order: expected {self._n_frames}")
+        arrays = {name: np.asarray(value) for name, value in fields.items()}
+        if self._file is None:
+            if "time" in arrays:
+                raise ValueError("field name 'time' is reserved for frame times; use <location>_<quantity>")
+            self._file = self._open_for_frames(arrays)
+        elif arrays.keys() != self._frames.keys():
+            raise ValueError(
+                f"frame {index} has fields {sorted(arrays)}, but the run has {sorted(self._frames)}"
+            )
+        for name, array in arrays.items():
+            if array.shape != self._shapes[name]:
+                raise ValueError(
+                    f"frame {index}: field {name!r} has shape {array.shape}, expected {self._shapes[name]}"
+                )
+        n = index + 1
+        for name, array in arrays.items():
+            dataset = self._frames[name]
+            dataset.resize(n, axis=0)
+            dataset[index] = array
+        times = self._file["frames/time"]
+        times.resize(n, axis=0)
+        times[index] = time
+        self._file.attrs["frames_complete"] = np.int64(n)
+        self._file.flush()
+        self._n_frames = n
+
+    def close(self) -> None:
+        """Close the file (every written frame is already flushed); safe to call twice."""
+        self._closed = True
+        if self._file is not None:
+            file, self._file = self._file, None
+            file.close()
+
+    def __enter__(self) -> Hdf5RunWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _open(path: Path) -> h5py.File:
+    """Open read-only; use SWMR read mode for a run still being written or killed mid-run."""
+    if not path.exists():
+        raise InputError(f"{path}: no such file; {_HINT}")
+    if not path.is_file():
+        raise InputError(f"{path}: not a file; {_HINT}")
+    if not h5py.is_hdf5(path):
+        raise InputError(f"{path}: not an HDF5 file; {_HINT}")
+    try:
+        return h5py.File(path, "r")
+    except OSError as error:
+        # Only a file flagged as open for writing goes to SWMR mode: SWMR readers retry failed
+        # metadata reads for minutes instead of failing, so a truncated or corrupt file must not
+        # get there (HDF5 reports truncation before it checks the flag).
+        if "already open for write" not in str(error):
+            raise InputError(f"{path}: cannot open the HDF5 file ({error}); {_CORRUPT_HINT}") from error
+    try:
+        return h5py.File(path, "r", swmr=True)
+    except OSError as error:
+        raise InputError(
+            f"{path}: the run writing this file is still starting or was killed before its first frame "
+            f"was complete ({error}); wait and retry, or re-run the simulation"
+        ) from error
+
+
+def _attr(value: Any) -> Any:
+    """HDF5 attribute values as plain Python values."""
+    if isinstance(value, bytes):
+        return value.decode("utf-8")
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return value
+
+
+def _corrupt(path: Path, error: BaseException) -> InputError:
+    return InputError(f"{path}: cannot read the run file ({type(error).__name__}: {error}); {_CORRUPT_HINT}")
+
+
+class RunData:
+    """A snapshot of a run file: header and static fields in memory, frames read on demand.
+
+    Frame data is read by reopening the file on each call, so no file handle stays open and a
+    run still being written can be read; only frames complete at ``read_run`` time are visible.
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        *,
+        scene_text: str,
+        plan: dict,
+        attrs: dict[str, Any],
+        times: np.ndarray,
+        static: dict[str, np.ndarray],
+        field_names: list[str],
+    ) -> None:
+        self.path = path
+        self.scene_text = scene_text
+        self.plan = plan
+        self.attrs = attrs
+        self.times = times
+        self.static = static
+        self.field_names = field_names
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+    def __repr__(self) -> str:
+        return f"RunData({str(self.path)!r}, frames={len(self)}, fields={self.field_names})"
+
+    def frame(self, i: int) -> dict[str, np.ndarray]:
+        """All per-frame fields of complete frame ``i`` (negative counts from the last)."""
+        n = len(self)
+        if not -n <= i < n:
+            raise IndexError(f"{self.path}: frame {i} out of range ({n} complete frames)")
+        i %= n
+        with _open(self.path) as f:
+            try:
+                return {name: f["frames"][name][i] for name in self.field_names}
+            except (OSError, KeyError, ValueError) as error:
+                raise _corrupt(self.path, error) from error
+
+    def field(self, name: str) -> np.ndarray:
+        """The history of one per-frame field over the complete frames, shape (n_frames, ...)."""
+        if name not in self.field_names:
+            raise KeyError(f"{self.path}: no per-frame field {name!r}; available: {self.field_names}")
+        with _open(self.path) as f:
+            try:
+                return f["frames"][name][: len(self)]
+            except (OSError, KeyError, ValueError) as error:
+                raise _corrupt(self.path, error) from error
+
+
+def read_run(path: str | os.PathLike[str]) -> RunData:
+    """Read a ``run.h5`` written by :class:`Hdf5RunWriter`; raise InputError if it is not one."""
+    path = Path(path)
+    with _open(path) as f:
+        try:
+            attrs = {key: _attr(value) for key, value in f.attrs.items()}
+            if attrs.get("format") != FORMAT:
+                what = "missing attribute 'format'" if "format" not in attrs else f"format is {attrs['format']!r}"
+                raise InputError(f"{path}: not a pdmpm run file ({what}); {_HINT}")
+            if attrs.get("format_version") != FORMAT_VERSION:
+                raise InputError(
+                    f"{path}: unsupported run file format_version {attrs.get('format_version')!r} "
+                    f"(this pdmpm {__version__} reads version {FORMAT_VERSION}); read it with a matching pdmpm"
+                )
+            for required in ("scene_text", "plan_json", "static", "frames", "frames/time"):
+                if required not in f:
+                    raise InputError(f"{path}: run file is incomplete (missing '{required}'); {_HINT}")
+            scene_text = f["scene_text"].asstr()[()]
+            plan = json.loads(f["plan_json"].asstr()[()])
+            static = {name: dataset[()] for name, dataset in f["static"].items()}
+            frames = f["frames"]
+            field_names = sorted(name for name in frames if name != "time")
+            n = min(
+                int(attrs.get("frames_complete", 0)),
+                frames["time"].shape[0],
+                *(frames[name].shape[0] for name in field_names),
+            )
+            times = frames["time"][:n]
+        except InputError:
+            raise
+        except (OSError, KeyError, ValueError, TypeError, AttributeError) as error:
+            raise _corrupt(path, error) from error
+    return RunData(
+        path,
+        scene_text=scene_text,
+        plan=plan,
+        attrs=attrs,
+        times=times,
+        static=static,
+        field_names=field_names,
+    )
