@@ -16,6 +16,15 @@ RANK_TOL = 1e-6
 EPS = 1e-9
 
 
+@njit(cache=True, inline="always")
+def bond_vector(x, p, q):
+    """(x_q - x_p) and its length: the reference bond xi on rest positions, eta on current ones."""
+    d0 = x[q, 0] - x[p, 0]
+    d1 = x[q, 1] - x[p, 1]
+    d2 = x[q, 2] - x[p, 2]
+    return d0, d1, d2, math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+
+
 def build_families(rest_x: np.ndarray, body_ranges, body_horizon) -> tuple[np.ndarray, np.ndarray]:
     """CSR families: bonds within each body's horizon, both directions stored."""
     src, dst = [], []
@@ -64,10 +73,7 @@ def reference_family_terms(rest_x, particle_volume, bond_start, bond_nbr, partic
         om = 0.0
         for b in range(bond_start[p], bond_start[p + 1]):
             q = bond_nbr[b]
-            x0 = rest_x[q, 0] - rest_x[p, 0]
-            x1 = rest_x[q, 1] - rest_x[p, 1]
-            x2 = rest_x[q, 2] - rest_x[p, 2]
-            r = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+            x0, x1, x2, r = bond_vector(rest_x, p, q)
             wv = (1.0 - r / delta) * particle_volume[q]
             om += wv
             xi = (x0, x1, x2)
@@ -87,10 +93,7 @@ def averaged_deformation(particle_x, rest_x, particle_volume, bond_start, bond_n
         a = np.zeros((3, 3))
         for b in range(bond_start[p], bond_start[p + 1]):
             q = bond_nbr[b]
-            x0 = rest_x[q, 0] - rest_x[p, 0]
-            x1 = rest_x[q, 1] - rest_x[p, 1]
-            x2 = rest_x[q, 2] - rest_x[p, 2]
-            r = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+            x0, x1, x2, r = bond_vector(rest_x, p, q)
             wv = (1.0 - r / delta) * particle_volume[q]
             xi = (x0, x1, x2)
             for i in range(3):
@@ -127,10 +130,7 @@ def bond_time_steps(rest_x, particle_volume, bond_start, bond_nbr, particle_body
         k = 0.0
         for b in range(bond_start[p], bond_start[p + 1]):
             q = bond_nbr[b]
-            r2 = 0.0
-            for a in range(3):
-                d = rest_x[q, a] - rest_x[p, a]
-                r2 += d * d
-            k += (particle_coef[p] + particle_coef[q]) * (1.0 - math.sqrt(r2) / delta) * particle_volume[q] / r2
+            r = bond_vector(rest_x, p, q)[3]
+            k += (particle_coef[p] + particle_coef[q]) * (1.0 - r / delta) * particle_volume[q] / (r * r)
         k *= body_modulus[body]
         out[p] = math.sqrt(2.0 * body_density[body] / k) if k > 0.0 else np.inf

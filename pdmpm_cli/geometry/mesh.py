@@ -408,6 +408,13 @@ def _num_den(ax, ay, az, la, bx, by, bz, lb, cx, cy, cz, lc):
 @njit(cache=True)
 def _half_solid_angle(qx, qy, qz, V, i0, i1, i2):
     """Half the signed solid angle of triangle (i0, i1, i2) seen from q (reference, with atan2)."""
+    num, den = _triangle_num_den(qx, qy, qz, V, i0, i1, i2)
+    return math.atan2(num, den)
+
+
+@njit(cache=True, inline="always")
+def _triangle_num_den(qx, qy, qz, V, i0, i1, i2):
+    """Numerator and denominator of tan(Omega/2) for triangle (i0, i1, i2) seen from q."""
     ax = V[i0, 0] - qx
     ay = V[i0, 1] - qy
     az = V[i0, 2] - qz
@@ -420,8 +427,7 @@ def _half_solid_angle(qx, qy, qz, V, i0, i1, i2):
     la = math.sqrt(ax * ax + ay * ay + az * az)
     lb = math.sqrt(bx * bx + by * by + bz * bz)
     lc = math.sqrt(cx * cx + cy * cy + cz * cz)
-    num, den = _num_den(ax, ay, az, la, bx, by, bz, lb, cx, cy, cz, lc)
-    return math.atan2(num, den)
+    return _num_den(ax, ay, az, la, bx, by, bz, lb, cx, cy, cz, lc)
 
 
 @njit(cache=True)
@@ -759,22 +765,7 @@ def _winding_number_kernel(points, V, Ts, node_lo, node_hi, start, end, left, bp
             nb = bptr[k + 1] - bptr[k]
             if contains or end[k] - start[k] <= nb:
                 for t in range(start[k], end[k]):
-                    i0 = Ts[t, 0]
-                    i1 = Ts[t, 1]
-                    i2 = Ts[t, 2]
-                    ax = V[i0, 0] - qx
-                    ay = V[i0, 1] - qy
-                    az = V[i0, 2] - qz
-                    bx = V[i1, 0] - qx
-                    by = V[i1, 1] - qy
-                    bz = V[i1, 2] - qz
-                    cx = V[i2, 0] - qx
-                    cy = V[i2, 1] - qy
-                    cz = V[i2, 2] - qz
-                    la = math.sqrt(ax * ax + ay * ay + az * az)
-                    lb = math.sqrt(bx * bx + by * by + bz * bz)
-                    lc = math.sqrt(cx * cx + cy * cy + cz * cz)
-                    num, den = _num_den(ax, ay, az, la, bx, by, bz, lb, cx, cy, cz, lc)
+                    num, den = _triangle_num_den(qx, qy, qz, V, Ts[t, 0], Ts[t, 1], Ts[t, 2])
                     zr, zi, wraps = _accumulate(zr, zi, wraps, num, den)
             elif nb > 0:
                 b0 = bptr[k]

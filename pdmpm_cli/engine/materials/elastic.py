@@ -11,8 +11,18 @@ and f_p = sum_q (T<p,q> - T<q,p>) V_p V_q (eq. 2, 7), which conserves linear mom
 
 import math
 
-import numpy as np
 from numba import njit, prange
+
+from pdmpm_cli.engine.bonds import bond_vector
+
+
+@njit(cache=True, inline="always")
+def averaged_bond(fbar, x0, x1, x2):
+    """Ybar = Fbar xi (eq. 4's averaged deformed bond) and its length."""
+    y0 = fbar[0, 0] * x0 + fbar[0, 1] * x1 + fbar[0, 2] * x2
+    y1 = fbar[1, 0] * x0 + fbar[1, 1] * x1 + fbar[1, 2] * x2
+    y2 = fbar[2, 0] * x0 + fbar[2, 1] * x1 + fbar[2, 2] * x2
+    return y0, y1, y2, math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
 
 
 @njit(parallel=True, cache=True)
@@ -28,14 +38,8 @@ def elastic_forces(start, end, lam, mu, delta, particle_x, rest_x, particle_volu
         vp = particle_volume[p]
         for b in range(bond_start[p], bond_start[p + 1]):
             q = bond_nbr[b]
-            x0 = rest_x[q, 0] - rest_x[p, 0]
-            x1 = rest_x[q, 1] - rest_x[p, 1]
-            x2 = rest_x[q, 2] - rest_x[p, 2]
-            r = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
-            e0 = particle_x[q, 0] - particle_x[p, 0]
-            e1 = particle_x[q, 1] - particle_x[p, 1]
-            e2 = particle_x[q, 2] - particle_x[p, 2]
-            l = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+            x0, x1, x2, r = bond_vector(rest_x, p, q)
+            e0, e1, e2, l = bond_vector(particle_x, p, q)
             cq = particle_coef[q]
             a = (1.0 - r / delta) / r * vp * particle_volume[q]
             if l > 0.0:
@@ -48,10 +52,7 @@ def elastic_forces(start, end, lam, mu, delta, particle_x, rest_x, particle_volu
                 for side in range(2):
                     fm = fp if side == 0 else fq
                     c = cp if side == 0 else cq
-                    y0 = fm[0, 0] * x0 + fm[0, 1] * x1 + fm[0, 2] * x2
-                    y1 = fm[1, 0] * x0 + fm[1, 1] * x1 + fm[1, 2] * x2
-                    y2 = fm[2, 0] * x0 + fm[2, 1] * x1 + fm[2, 2] * x2
-                    ly = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
+                    y0, y1, y2, ly = averaged_bond(fm, x0, x1, x2)
                     if ly > 0.0:
                         g = a * 2.0 * mu * c * (ly / r - 1.0) / ly
                         f0 += g * y0
@@ -72,20 +73,11 @@ def elastic_energy(start, end, lam, mu, delta, particle_x, rest_x, particle_volu
         wsum = 0.0
         for b in range(bond_start[p], bond_start[p + 1]):
             q = bond_nbr[b]
-            x0 = rest_x[q, 0] - rest_x[p, 0]
-            x1 = rest_x[q, 1] - rest_x[p, 1]
-            x2 = rest_x[q, 2] - rest_x[p, 2]
-            r = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
-            e0 = particle_x[q, 0] - particle_x[p, 0]
-            e1 = particle_x[q, 1] - particle_x[p, 1]
-            e2 = particle_x[q, 2] - particle_x[p, 2]
-            s = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2) / r - 1.0
+            x0, x1, x2, r = bond_vector(rest_x, p, q)
+            s = bond_vector(particle_x, p, q)[3] / r - 1.0
             sb = 0.0
             if mu > 0.0:
-                y0 = fp[0, 0] * x0 + fp[0, 1] * x1 + fp[0, 2] * x2
-                y1 = fp[1, 0] * x0 + fp[1, 1] * x1 + fp[1, 2] * x2
-                y2 = fp[2, 0] * x0 + fp[2, 1] * x1 + fp[2, 2] * x2
-                sb = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2) / r - 1.0
+                sb = averaged_bond(fp, x0, x1, x2)[3] / r - 1.0
             wsum += (1.0 - r / delta) * particle_volume[q] * (mu * sb * sb + 0.5 * lam * s * s)
         total += particle_coef[p] * wsum * particle_volume[p]
     return total
