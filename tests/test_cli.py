@@ -125,3 +125,17 @@ def test_failed_simulation_exits_1(small_scene, tmp_path, monkeypatch, capsys):
     with pytest.raises(SystemExit) as exc:
         main()
     assert exc.value.code == 1 and "NaN or infinite values at step 7" in capsys.readouterr().err
+
+
+def test_mesh_body_relative_to_scene_file(tmp_path):
+    """A cloud body filling a closed OBJ given relative to the scene file; particle volume matches the mesh."""
+    import shutil
+
+    shutil.copy(ROOT / "tests" / "data" / "unit_cube.obj", tmp_path / "cube.obj")
+    path = tmp_path / "mesh.yaml"
+    path.write_text(SMALL.replace("{type: box, center: [0.4, 0.45, 0.4], size: [0.2, 0.2, 0.2]}",
+                                  "{type: mesh, path: cube.obj, scale: 0.2, translate: [0.3, 0.35, 0.3]}"))
+    prep = prepare(path)
+    volume = prep.model.particle_volume.sum()
+    assert volume == pytest.approx(0.2**3, rel=0.03)
+    assert prep.model.rest_x.min(axis=0) == pytest.approx([0.3, 0.35, 0.3], abs=0.025)
