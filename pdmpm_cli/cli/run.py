@@ -52,7 +52,7 @@ def run(
     """Simulate SCENE and write run.h5 (all frames) and vtk/particles.pvd (ParaView) to the output folder."""
     from pdmpm_cli.runner import prepare, simulate
 
-    console = Console(stderr=True, highlight=False)
+    console = Console(stderr=True, highlight=False, soft_wrap=True)
     prep = prepare(scene, set_)
     for w in prep.plan.warnings():
         console.print(f"[yellow]warning:[/] {w}")

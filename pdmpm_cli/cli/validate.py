@@ -4,6 +4,7 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from pdmpm_cli.cli.options import SceneArg, SetOpt
@@ -17,7 +18,7 @@ def validate(
     """Validate a scene file: schema, geometry and bonds. Exit code 2 on any problem."""
     from pdmpm_cli.runner import prepare
 
-    console = Console(highlight=False)
+    console = Console(highlight=False, soft_wrap=True)
     prep = prepare(scene, set_)
     plan = prep.plan
     for w in plan.warnings():
@@ -30,18 +31,26 @@ def validate(
 def print_plan(console: Console, plan):
     console.print(f"phases per step: {' -> '.join(plan.phases)}")
     bodies = Table(title="bodies")
-    for col in ("body", "model", "particles", "bonds/particle", "h [m]", "delta [m]", "E_eff [Pa]", "nu_eff",
-                "P-wave [m/s]", "bond dt [s]"):
-        bodies.add_column(col, justify="right")
+    bodies.add_column("")
     for b in plan.bodies:
-        e = b.effective
-        bodies.add_row(b.name, b.model, str(b.particles), f"{b.bonds / max(b.particles, 1):.1f}", f"{b.spacing:.4g}",
-                       f"{b.horizon:.4g}", f"{e['youngs_modulus']:.4g}", f"{e['poisson_ratio']:.3g}",
-                       f"{e['wave_speed']:.4g}", f"{b.dt_bond:.3g}")
+        bodies.add_column(b.name, justify="right")
+    rows = {
+        "model": [b.model for b in plan.bodies],
+        "particles": [str(b.particles) for b in plan.bodies],
+        "bonds per particle": [f"{b.bonds / max(b.particles, 1):.1f}" for b in plan.bodies],
+        "spacing h [m]": [f"{b.spacing:.4g}" for b in plan.bodies],
+        "horizon delta [m]": [f"{b.horizon:.4g}" for b in plan.bodies],
+        "E_eff [Pa]": [f"{b.effective['youngs_modulus']:.4g}" for b in plan.bodies],
+        "nu_eff": [f"{b.effective['poisson_ratio']:.3g}" for b in plan.bodies],
+        "P-wave speed [m/s]": [f"{b.effective['wave_speed']:.4g}" for b in plan.bodies],
+        "bond dt bound [s]": [f"{b.dt_bond:.3g}" for b in plan.bodies],
+    }
+    for label, values in rows.items():
+        bodies.add_row(escape(label), *values)
     console.print(bodies)
     steps = Table(title="time step")
     steps.add_column("bound")
-    steps.add_column("value [s]", justify="right")
+    steps.add_column(escape("value [s]"), justify="right")
     steps.add_row("user dt", "-" if plan.dt_user is None else f"{plan.dt_user:.4g}")
     steps.add_row("CFL (at rest)", f"{plan.dt_cfl:.4g}")
     steps.add_row("bonds (x safety)", f"{plan.dt_bond:.4g}")
