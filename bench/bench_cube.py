@@ -37,7 +37,7 @@ def cube_scene(n_target: int) -> Scene:
 
 def bench(n_target: int, steps: int) -> dict:
     prep = prepare_scene(cube_scene(n_target), "bench.yaml")
-    state = State.allocate(prep.model, prep.disc, "fbar" in prep.plan.phases)
+    state = State.allocate(prep.model, prep.disc, prep.plan.fields)
     solver = Solver(prep.model, prep.plan)
     dt = prep.plan.dt_max
     for _ in range(2):  # compile (or load the cache) and warm up

@@ -13,7 +13,7 @@ import numpy as np
 
 from pdmpm_cli.engine.bonds import bond_time_steps
 from pdmpm_cli.engine.discretize import Discretization
-from pdmpm_cli.engine.materials import MATERIALS
+from pdmpm_cli.engine.materials import MATERIALS, kind_of
 from pdmpm_cli.engine.model import Model
 from pdmpm_cli.scene.schema import Scene
 
@@ -21,7 +21,7 @@ from pdmpm_cli.scene.schema import Scene
 @dataclass(frozen=True)
 class BodyPlan:
     name: str
-    model: str
+    model: str  # registry entry the body runs (a plastic body that cannot yield runs as elastic)
     particles: int
     bonds: int
     spacing: float  # h [m]
@@ -33,7 +33,7 @@ class BodyPlan:
 @dataclass(frozen=True)
 class Plan:
     phases: tuple[str, ...]
-    fields: dict  # name -> shape of every per-particle or grid array the run allocates
+    fields: dict  # name -> (shape, dtype) of every per-particle, per-bond or grid array the run allocates
     bodies: tuple[BodyPlan, ...]
     particles: int
     bonds: int
@@ -65,7 +65,9 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
     """Decide phases, arrays and time-step bounds for a discretised scene."""
     sim = scene.simulation
     mats = [b.material for b in scene.bodies]
-    need_fbar = any(MATERIALS[m.model].needs_fbar and m.mu > 0 for m in mats)
+    kinds = [kind_of(m) for m in mats]
+    need_fbar = any(MATERIALS[k].needs_fbar(m) for k, m in zip(kinds, mats))
+    fracture = any(b.fracture is not None for b in scene.bodies)
     modulus = np.array([m.lam + 2 * m.mu for m in mats])
     density = np.array([m.density for m in mats])
     dt_p = np.empty(disc.n_particles)
@@ -75,10 +77,10 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
     for i, (body, (s, e)) in enumerate(zip(scene.bodies, disc.body_ranges)):
         m = body.material
         bodies.append(BodyPlan(
-            name=body.name, model=m.model, particles=e - s,
+            name=body.name, model=kinds[i], particles=e - s,
             bonds=int(disc.bond_start[e] - disc.bond_start[s]),
             spacing=float(disc.body_spacing[i]), horizon=float(disc.body_horizon[i]),
-            effective=MATERIALS[m.model].effective_constants(m.lam, m.mu, m.density),
+            effective=MATERIALS[kinds[i]].effective_constants(m.lam, m.mu, m.density),
             dt_bond=float(dt_p[s:e].min()) if e > s else math.inf,
         ))
     wave = max(b.effective["wave_speed"] for b in bodies)
@@ -89,28 +91,39 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
     reduced = sim.dt is not None and sim.dt > dt_max * (1 + 1e-12)
     if sim.dt is not None:
         dt_max = min(dt_max, sim.dt)
+    used = list(dict.fromkeys(kinds))
     phases = ["fbar"] if need_fbar else []
-    phases += [f"bonds:{m}" for m in dict.fromkeys(b.model for b in bodies)]
+    for stage in ("return_map", "bonds", "families"):
+        phases += [f"{stage}:{k}" for k in used if stage in MATERIALS[k].phases]
     phases += ["p2g", "grid_update", "g2p"]
-    n, nodes = disc.n_particles, model.grid_shape
+    if fracture:
+        phases += ["crack", "fracture"]
+    n, nb, nodes = disc.n_particles, disc.n_bonds, model.grid_shape
     fields = {
-        "particle_x": (n, 3), "particle_v": (n, 3), "particle_C": (n, 3, 3), "particle_force": (n, 3),
-        "rest_x": (n, 3), "particle_volume": (n,), "particle_mass": (n,), "particle_body": (n,),
-        "particle_Kinv": (n, 3, 3), "particle_coef": (n,), "particle_omega": (n,),
-        "bond_start": (n + 1,), "bond_nbr": (disc.n_bonds,),
-        "grid": nodes + (4,), "grid_private": (numba.get_num_threads(),) + nodes + (4,),
+        "particle_x": ((n, 3), "f8"), "particle_v": ((n, 3), "f8"), "particle_C": ((n, 3, 3), "f8"),
+        "particle_force": ((n, 3), "f8"), "rest_x": ((n, 3), "f8"), "particle_volume": ((n,), "f8"),
+        "particle_mass": ((n,), "f8"), "particle_body": ((n,), "i4"), "particle_Kinv": ((n, 3, 3), "f8"),
+        "particle_coef": ((n,), "f8"), "particle_omega": ((n,), "f8"),
+        "bond_start": ((n + 1,), "i8"), "bond_nbr": ((nb,), "i4"),
+        "grid": (nodes + (4,), "f8"), "grid_private": ((numba.get_num_threads(),) + nodes + (4,), "f8"),
     }
     if need_fbar:
-        fields["particle_Fbar"] = (n, 3, 3)
+        fields["particle_Fbar"] = ((n, 3, 3), "f8")
+    for k in used:
+        fields.update({name: ((nb,), dt) for name, dt in MATERIALS[k].bond_fields.items()})
+        fields.update({name: ((n,) + tail, dt) for name, (tail, dt) in MATERIALS[k].particle_fields.items()})
+    if fracture:
+        fields.update({
+            "bond_active": ((nb,), "u1"), "particle_damage": ((n,), "f8"), "particle_crack": ((n,), "u1"),
+            "particle_inactive": ((n,), "f8"), "particle_lmax": ((n,), "f8"), "particle_bmax": ((n,), "i8"),
+        })
     if len(disc.pin_mask):
-        fields["pin_mask"] = (n,)
-        fields["pin_velocity"] = (n, 3)
-    memory = sum(int(np.prod(s)) * (4 if k in ("bond_nbr", "particle_body") else 1 if k == "pin_mask" else 8)
-                 for k, s in fields.items())
+        fields["pin_mask"] = ((n,), "u1")
+        fields["pin_velocity"] = ((n, 3), "f8")
+    memory = sum(int(np.prod(shape)) * np.dtype(dt).itemsize for shape, dt in fields.values())
     return Plan(
-        phases=tuple(phases), fields=fields, bodies=tuple(bodies), particles=n, bonds=disc.n_bonds,
+        phases=tuple(phases), fields=fields, bodies=tuple(bodies), particles=n, bonds=nb,
         grid_nodes=nodes, cell_size=scene.grid.cell_size,
         frames=max(1, int(round(sim.duration * sim.fps))), frame_dt=frame_dt, dt_user=sim.dt,
         dt_cfl=dt_cfl, dt_bond=dt_bond, dt_max=dt_max, dt_reduced=reduced, wave_speed=wave, memory_bytes=memory,
     )
-

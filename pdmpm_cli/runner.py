@@ -8,6 +8,7 @@ from typing import Protocol
 
 import numpy as np
 
+from pdmpm_cli.engine.materials.plastic import particle_plastic_strain
 from pdmpm_cli.engine.discretize import Discretization, discretize
 from pdmpm_cli.engine.model import Model, State
 from pdmpm_cli.engine.solver import Solver
@@ -70,9 +71,11 @@ def frame_fields(state: State, names) -> dict[str, np.ndarray]:
     for name in names:
         if name == "particle_speed":
             out[name] = np.linalg.norm(state.particle_v, axis=1)
-        elif name == "particle_Fbar" and not len(state.particle_Fbar):
-            continue
-        else:
+        elif name == "particle_plastic_strain":
+            if len(state.bond_ep):
+                out[name] = np.zeros(len(state.particle_x))
+                particle_plastic_strain(state.bond_start, state.bond_ep, out[name])
+        elif len(getattr(state, name)):  # fields a scene does not have (Fbar, damage) are left out
             out[name] = getattr(state, name)
     return out
 
@@ -100,7 +103,7 @@ def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwr
 
     scene, plan, model = prep.scene, prep.plan, prep.model
     prepare_output_dir(out, overwrite)
-    state = State.allocate(model, prep.disc, "fbar" in plan.phases)
+    state = State.allocate(model, prep.disc, plan.fields)
     solver = Solver(model, plan)
     solver.start(state)
     static = static_fields(model)

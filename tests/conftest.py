@@ -37,12 +37,15 @@ class Sim:
         self.scene = Scene.model_validate(scene_dict)
         self.prep = prepare_scene(self.scene, tmp_path / "scene.yaml" if hasattr(tmp_path, "joinpath") else "x")
         self.model, self.plan = self.prep.model, self.prep.plan
-        self.state = State.allocate(self.model, self.prep.disc, "fbar" in self.plan.phases)
+        self.state = State.allocate(self.model, self.prep.disc, self.plan.fields)
         self.solver = Solver(self.model, self.plan)
         self.solver.start(self.state)
 
     def advance(self, t_end, on_substep=None):
-        self.solver.advance(self.state, t_end, on_substep)
+        """Advance to t_end frame by frame, as the runner does (the blow-up check runs at every frame)."""
+        frames = np.arange(self.state.time, t_end, self.plan.frame_dt)[1:]
+        for t in [*frames[frames < t_end - 1e-12], t_end]:
+            self.solver.advance(self.state, t, on_substep)
 
     def momentum(self):
         return self.model.particle_mass @ self.state.particle_v

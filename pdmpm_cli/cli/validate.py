@@ -61,7 +61,8 @@ def print_plan(console: Console, plan):
     arrays = Table(title=f"arrays ({plan.memory_bytes / 2**20:.1f} MiB)")
     arrays.add_column("field")
     arrays.add_column("shape", justify="right")
-    for name, shape in plan.fields.items():
-        arrays.add_row(name, " x ".join(map(str, shape)))
+    arrays.add_column("dtype")
+    for name, (shape, dtype) in plan.fields.items():
+        arrays.add_row(name, " x ".join(map(str, shape)), dtype)
     console.print(arrays)
     console.print(f"grid: {' x '.join(map(str, plan.grid_nodes))} nodes, cell {plan.cell_size:.4g} m")

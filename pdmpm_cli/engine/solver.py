@@ -6,9 +6,10 @@ from collections import defaultdict
 import numpy as np
 
 from pdmpm_cli.engine.bonds import averaged_deformation
+from pdmpm_cli.engine.fracture import bond_criterion, crack_particle_update, damage, fracture_update, inactive_fraction
 from pdmpm_cli.engine.materials import MATERIALS
 from pdmpm_cli.engine.model import Model, State
-from pdmpm_cli.engine.transfer import p2g, grid_update, g2p
+from pdmpm_cli.engine.transfer import WALL, p2g, grid_update, g2p
 from pdmpm_cli.errors import SimulationError
 from pdmpm_cli.plan import Plan
 
@@ -23,22 +24,38 @@ class Solver:
         self.plan = plan
         self.vmax = 0.0
         self.energy_budget = 0.0
+        self.energy_prev = 0.0  # kinetic + strain energy at the previous frame [J]
         self.phase_time = defaultdict(float)  # wall seconds spent in each phase, for benchmarks
+        self.yield_residual = -1.0  # largest f / psi_p after any return map so far (0: exactly on the surface)
+        self.bonds_cut = 0  # bonds removed by fracture planes so far
+        kinds = [b.model for b in plan.bodies]
+        self.bodies_of = {k: [i for i, kk in enumerate(kinds) if kk == k] for k in kinds}
+        self.fbar_bodies = [i for i, (k, mat) in enumerate(zip(kinds, model.materials))
+                            if MATERIALS[k].needs_fbar(mat)]
+        self.fracture_bodies = [i for i, f in enumerate(model.fracture) if f is not None]
+        if self.fracture_bodies:
+            nodes = np.asarray(model.grid_shape)
+            self.cells = (nodes - 1).astype(np.int64)
+            self.valid_lo = model.origin + WALL * model.dx
+            self.valid_hi = model.origin + (nodes - 1 - WALL) * model.dx
 
     # ---- phases
     def fbar(self, state: State, dt: float = 0.0):
+        """Eq. 4 for the bodies whose material uses Fbar."""
         m = self.model
-        averaged_deformation(state.particle_x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr,
-                             m.particle_body, m.body_horizon, m.particle_Kinv, state.particle_Fbar)
+        for body in self.fbar_bodies:
+            start, end = m.body_ranges[body]
+            averaged_deformation(start, end, state.particle_x, m.rest_x, m.particle_volume, state.bond_start,
+                                 state.bond_nbr, state.bond_active, m.particle_body, m.body_horizon,
+                                 m.particle_Kinv, state.particle_Fbar)
 
-    def bonds(self, state: State, model_name: str):
-        m = self.model
-        kernel = MATERIALS[model_name].forces
-        fbar = state.particle_Fbar if len(state.particle_Fbar) else np.zeros((1, 3, 3))
-        for (start, end), mat, delta in zip(m.body_ranges, m.materials, m.body_horizon):
-            if mat.model == model_name and end > start:
-                kernel(start, end, mat.lam, mat.mu, delta, state.particle_x, m.rest_x, m.particle_volume,
-                       m.bond_start, m.bond_nbr, m.particle_coef, fbar, state.particle_force)
+    def material_phase(self, state: State, stage: str, kind: str, dt: float):
+        """Run a material's phase (e.g. return_map:plastic, bonds:elastic) on every body of that kind."""
+        fn = MATERIALS[kind].phases[stage]
+        for body in self.bodies_of[kind]:
+            result = fn(self.model, state, body, dt)
+            if stage == "return_map":
+                self.yield_residual = max(self.yield_residual, result)
 
     def node_box(self, state: State) -> np.ndarray:
         """Node index box [i0, i1) x [j0, j1) x [k0, k1) touched by the particles' B-spline stencils."""
@@ -59,7 +76,7 @@ class Solver:
         m = self.model
         self.box = self.node_box(state)
         outside = p2g(state.particle_x, state.particle_v, state.particle_C, m.particle_mass, state.particle_force,
-                      dt, m.origin, 1.0 / m.dx, self.box, state.grid_private, state.grid)
+                      state.particle_crack, m.pin_mask, dt, m.origin, 1.0 / m.dx, self.box, state.grid_private, state.grid)
         if outside:
             self.fail_outside(state)
 
@@ -71,21 +88,54 @@ class Solver:
     def g2p(self, state: State, dt: float):
         m = self.model
         self.vmax, bad = g2p(state.grid, dt, m.origin, 1.0 / m.dx, state.time + dt, m.colliders, m.pin_mask,
-                             m.pin_velocity, state.particle_x, state.particle_v, state.particle_C)
+                             m.pin_velocity, state.particle_crack, state.particle_x, state.particle_v, state.particle_C)
         if bad:
             self.fail_nonfinite(state)
+
+    def crack(self, state: State, dt: float):
+        """Crack-surface particles advance by their own bond forces, gravity and collisions (section 6)."""
+        m = self.model
+        vmax, bad = crack_particle_update(dt, m.gravity, state.time + dt, m.colliders, self.valid_lo, self.valid_hi,
+                                          state.particle_crack, m.particle_mass, state.particle_force,
+                                          state.particle_x, state.particle_v, state.particle_C)
+        self.vmax = max(self.vmax, vmax)
+        if bad:
+            self.fail_nonfinite(state)
+
+    def fracture(self, state: State, dt: float):
+        """Eq. 21 criterion, clustering and fracture planes (section 6), then damage and crack-particle flags.
+
+        Particles with a broken bond stop using Fbar (elastic.py), so K^-1 never needs recomputing."""
+        m = self.model
+        inactive_fraction(state.particle_x, m.origin, 1.0 / m.dx, self.cells, state.bond_start, state.bond_active,
+                          state.particle_inactive)
+        cut = 0
+        for body in self.fracture_bodies:
+            start, end = m.body_ranges[body]
+            threshold = m.fracture[body].threshold
+            if bond_criterion(start, end, threshold, state.particle_x, m.rest_x, state.bond_start, state.bond_nbr,
+                              state.bond_active, state.bond_ep, state.particle_inactive, state.particle_lmax,
+                              state.particle_bmax):
+                cut += fracture_update(threshold, m.body_horizon[body], start, end, state.particle_x, m.rest_x,
+                                       state.bond_start, state.bond_nbr, state.bond_active, state.particle_lmax,
+                                       state.particle_bmax)
+        if cut:
+            self.bonds_cut += cut
+            damage(state.bond_start, state.bond_active, state.particle_damage, state.particle_crack)
 
     def substep(self, state: State, dt: float):
         """One explicit step: the Plan's phases in order, each timed."""
         for phase in self.plan.phases:
             t0 = time.perf_counter()
-            if phase.startswith("bonds:"):
-                self.bonds(state, phase[6:])
+            stage, _, kind = phase.partition(":")
+            if kind:
+                self.material_phase(state, stage, kind, dt)
             else:
                 getattr(self, phase)(state, dt)
             self.phase_time[phase] += time.perf_counter() - t0
         state.step += 1
         state.time += dt
+        state.dt_prev = dt
 
     def advance(self, state: State, t_end: float, on_substep=None):
         """Substep until state.time reaches t_end exactly; the last step is shortened to land on it."""
@@ -112,34 +162,36 @@ class Solver:
 
     def strain_energy(self, state: State) -> float:
         """Total strain energy of all bodies [J] (eq. 5 with the calibration)."""
-        m = self.model
-        if "fbar" in self.plan.phases:
-            self.fbar(state)
-        fbar = state.particle_Fbar if len(state.particle_Fbar) else np.zeros((1, 3, 3))
-        total = 0.0
-        for (start, end), mat, delta in zip(m.body_ranges, m.materials, m.body_horizon):
-            total += MATERIALS[mat.model].energy(start, end, mat.lam, mat.mu, delta, state.particle_x, m.rest_x, m.particle_volume,
-                                                 m.bond_start, m.bond_nbr, m.particle_coef, fbar)
-        return total
+        self.fbar(state)
+        return sum(MATERIALS[b.model].energy(self.model, state, i) for i, b in enumerate(self.plan.bodies))
 
     def start(self, state: State):
         """Set the energy budget the runaway check measures against [J]: what gravity (over the domain's
         largest extent), the colliders' motion and the initial motion can legitimately supply."""
+        for i, b in enumerate(self.plan.bodies):
+            if MATERIALS[b.model].init is not None:
+                MATERIALS[b.model].init(self.model, state, i)
         m = self.model
         extent = float(np.max(np.asarray(self.plan.grid_nodes) - 1) * m.dx)
         v_coll = float(np.abs(m.colliders[:, 10:13]).max()) if len(m.colliders) else 0.0
         mass = float(m.particle_mass.sum())
         self.energy_budget = self.kinetic_energy(state) + mass * (np.linalg.norm(m.gravity) * extent + v_coll**2)
         self.energy_budget += self.strain_energy(state) + 1e-12 * mass
+        self.energy_prev = self.energy_budget
 
     def check_energy(self, state: State):
+        """Blow-up test, once per frame: kinetic energy may not exceed 10x the larger of the budget and the
+        total (kinetic + strain) energy at the previous check. Pins and breaking bonds may legitimately turn
+        stored energy into motion; they cannot multiply the total tenfold within one frame."""
         ke = self.kinetic_energy(state)
-        limit = RUNAWAY_FACTOR * self.energy_budget
+        limit = RUNAWAY_FACTOR * max(self.energy_budget, self.energy_prev)
+        self.energy_prev = ke + self.strain_energy(state)
         if ke > limit:
             fastest = np.argsort(np.einsum("ij,ij->i", state.particle_v, state.particle_v))[-5:][::-1]
             raise SimulationError(
                 f"runaway energy after step {state.step} (t = {state.time:.6g} s): kinetic energy {ke:.4g} J exceeds "
-                f"{RUNAWAY_FACTOR:g}x what gravity, colliders and the initial motion can supply ({limit:.4g} J); "
+                f"{RUNAWAY_FACTOR:g}x the energy of the previous frame or what gravity, colliders and the initial motion "
+                f"can supply ({limit:.4g} J); "
                 f"fastest particles {fastest.tolist()} at speed "
                 f"{np.linalg.norm(state.particle_v[fastest[0]]):.4g} m/s. "
                 f"Lower simulation.cfl or simulation.bond_safety (now {self.plan.dt_max:.3g} s max step)"

@@ -17,11 +17,16 @@ WALL = 3  # nodes within this many cells of the domain edge act as walls; partic
 
 
 @njit(parallel=True, cache=True)
-def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, dt, origin, inv_dx, box,
-        grid_private, grid):
+def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt, origin,
+        inv_dx, box, grid_private, grid):
     """P2G of mass, APIC momentum and dt * bond force (eq. 7: f_I = sum_p N_I(x_p) f_p) -> grid.
 
-    Returns the number of particles outside the valid part of the domain (they are skipped)."""
+    Crack-surface particles (particle_crack = 1; the array is empty without fracture) stay off the grid:
+    they have their own integrator (section 6). Pinned particles bring their prescribed momentum but not their
+    bond force: that force is the grip's reaction, and scattering it would pull their free neighbours.
+    Returns the number of particles outside the valid domain."""
+    has_crack = particle_crack.shape[0] > 0
+    has_pins = pin_mask.shape[0] > 0
     nt = grid_private.shape[0]
     n = particle_x.shape[0]
     nx, ny, nz = grid.shape[0], grid.shape[1], grid.shape[2]
@@ -33,6 +38,8 @@ def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, dt, o
         wy = np.empty(4)
         wz = np.empty(4)
         for p in range(t * n // nt, (t + 1) * n // nt):
+            if has_crack and particle_crack[p]:
+                continue
             fx = (particle_x[p, 0] - origin[0]) * inv_dx
             fy = (particle_x[p, 1] - origin[1]) * inv_dx
             fz = (particle_x[p, 2] - origin[2]) * inv_dx
@@ -44,6 +51,7 @@ def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, dt, o
             bz = cubic_weights(fz, wz)
             m = particle_mass[p]
             c = particle_C[p]
+            fdt = 0.0 if has_pins and pin_mask[p] else dt
             for i in range(4):
                 dx0 = (bx + i - fx) / inv_dx
                 for j in range(4):
@@ -56,7 +64,7 @@ def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, dt, o
                         node[0] += wgt * m
                         for a in range(3):
                             mom = m * (particle_v[p, a] + c[a, 0] * dx0 + c[a, 1] * dx1 + c[a, 2] * dx2)
-                            node[1 + a] += wgt * (mom + dt * particle_force[p, a])
+                            node[1 + a] += wgt * (mom + fdt * particle_force[p, a])
     for i in prange(box[0], box[1]):
         for j in range(box[2], box[3]):
             for k in range(box[4], box[5]):
@@ -98,17 +106,19 @@ def grid_update(grid, dt, gravity, origin, dx, box, t_new, colliders, wall_bound
 
 
 @njit(parallel=True, cache=True)
-def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, particle_x, particle_v,
-        particle_C):
-    """G2P velocity and APIC affine matrix (step 5), pins, particle collisions (step 6), advection.
-
-    Returns (max particle speed, number of non-finite particles)."""
+def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, particle_crack, particle_x,
+        particle_v, particle_C):
+    """G2P velocity and APIC affine matrix (step 5), pins, particle collisions (step 6), advection; crack-surface
+    particles are left to their own integrator. Returns (max particle speed, number of non-finite particles)."""
     n = particle_x.shape[0]
     has_pins = pin_mask.shape[0] > 0
+    has_crack = particle_crack.shape[0] > 0
     vmax = 0.0
     bad = 0
     scale = 3.0 * inv_dx * inv_dx  # D_p^-1 for cubic B-splines (Jiang et al. 2015)
     for p in prange(n):
+        if has_crack and particle_crack[p]:
+            continue
         wx = np.empty(4)
         wy = np.empty(4)
         wz = np.empty(4)

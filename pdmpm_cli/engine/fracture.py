@@ -1,0 +1,286 @@
+"""Fracture (paper section 6, eq. 21): bond criterion, plane cuts through candidate clusters, damage,
+and the grid-free integrator of crack-surface particles.
+
+Criterion of bond p-q, read as a strain (eq. 21): l = (s - e_p) / (1 + p_inactive), s = |eta| / |xi| - 1,
+where p_inactive is the fraction of broken bonds among all bonds of the particles in p's grid cell: a cell
+that already holds a crack resists further breaking, which keeps the crack from turning into dust.
+Particles with an active bond over the threshold are candidates. Candidates joined by active bonds whose
+most deformed bonds point within 45 degrees of each other form a cluster; each cluster cuts its bonds by
+one plane through its centroid, normal to its most deformed bond, so a crack grows as a surface.
+Bonds are stored in both directions and are always cut in both.
+"""
+
+import math
+
+import numpy as np
+from numba import njit, prange
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from pdmpm_cli.engine.bonds import bond_vector
+from pdmpm_cli.engine.colliders import collide_all, push_out
+
+SPLIT_COS = math.cos(math.pi / 4.0)  # candidates whose bonds open in directions > 45 degrees apart: two cracks
+
+
+@njit(parallel=True, cache=True)
+def inactive_fraction(particle_x, origin, inv_dx, cells, bond_start, bond_active, particle_inactive):
+    """p_inactive of eq. 21: broken / all bonds of the particles in each particle's cell -> particle_inactive.
+
+    Cells are grouped by sorting their linear keys; the counts are integers, so the result does not depend
+    on the thread count. Particles outside the grid count in the nearest boundary cell."""
+    n = particle_x.shape[0]
+    key = np.empty(n, np.int64)
+    broken = np.empty(n, np.int64)
+    total = 0
+    for p in prange(n):
+        k = 0
+        for a in range(3):
+            i = min(max(int(math.floor((particle_x[p, a] - origin[a]) * inv_dx)), 0), cells[a] - 1)
+            k = k * cells[a] + i
+        key[p] = k
+        nb = 0
+        for b in range(bond_start[p], bond_start[p + 1]):
+            if bond_active[b] == 0:
+                nb += 1
+        broken[p] = nb
+        total += nb
+    if total == 0:
+        particle_inactive[:] = 0.0
+        return
+    order = np.argsort(key)
+    i = 0
+    while i < n:
+        k = key[order[i]]
+        j = i
+        nb = 0
+        nt = 0
+        while j < n and key[order[j]] == k:
+            p = order[j]
+            nb += broken[p]
+            nt += bond_start[p + 1] - bond_start[p]
+            j += 1
+        frac = nb / nt if nt > 0 else 0.0
+        for m in range(i, j):
+            particle_inactive[order[m]] = frac
+        i = j
+
+
+@njit(parallel=True, cache=True)
+def bond_criterion(start, end, threshold, particle_x, rest_x, bond_start, bond_nbr, bond_active, bond_ep,
+                   particle_inactive, particle_lmax, particle_bmax):
+    """Largest eq. 21 criterion over each particle's active bonds -> particle_lmax, its bond -> particle_bmax.
+
+    A particle without active bonds gets 0 and -1. bond_ep of shape (0,) means no plasticity (e_p = 0).
+    Returns the number of particles of start..end-1 over the threshold (fracture candidates)."""
+    has_ep = bond_ep.shape[0] > 0
+    count = 0
+    for p in prange(start, end):
+        scale = 1.0 / (1.0 + particle_inactive[p])
+        best = -np.inf
+        arg = -1
+        for b in range(bond_start[p], bond_start[p + 1]):
+            if bond_active[b] == 0:
+                continue
+            q = bond_nbr[b]
+            s = bond_vector(particle_x, p, q)[3] / bond_vector(rest_x, p, q)[3] - 1.0
+            if has_ep:
+                s -= bond_ep[b]
+            if s * scale > best:
+                best = s * scale
+                arg = b
+        if arg < 0:
+            best = 0.0
+        particle_lmax[p] = best
+        particle_bmax[p] = arg
+        if arg >= 0 and best > threshold:
+            count += 1
+    return count
+
+
+@njit(cache=True)
+def cut_pair(b, p, bond_start, bond_nbr, bond_active):
+    """Break bond b (p -> q) and its reverse q -> p in bond_active; returns 1 if it was intact, else 0."""
+    if bond_active[b] == 0:
+        return 0
+    bond_active[b] = 0
+    q = bond_nbr[b]
+    for r in range(bond_start[q], bond_start[q + 1]):
+        if bond_nbr[r] == p:
+            bond_active[r] = 0
+    return 1
+
+
+@njit(cache=True)
+def candidate_edges(start, end, cand, particle_x, bond_start, bond_nbr, bond_active, particle_bmax):
+    """Edges (i < j, indices into cand) of active bonds between candidates whose most deformed bonds are
+    within 45 degrees of each other: the graph whose connected components are the crack clusters."""
+    local = np.full(end - start, -1, np.int64)
+    dirs = np.empty((cand.shape[0], 3))
+    size = 0
+    for i in range(cand.shape[0]):
+        p = cand[i]
+        local[p - start] = i
+        d0, d1, d2, ln = bond_vector(particle_x, p, bond_nbr[particle_bmax[p]])
+        ln = max(ln, np.finfo(np.float64).tiny)
+        dirs[i, 0], dirs[i, 1], dirs[i, 2] = d0 / ln, d1 / ln, d2 / ln
+        size += bond_start[p + 1] - bond_start[p]
+    src = np.empty(size, np.int64)
+    dst = np.empty(size, np.int64)
+    count = 0
+    for i in range(cand.shape[0]):
+        p = cand[i]
+        for b in range(bond_start[p], bond_start[p + 1]):
+            j = local[bond_nbr[b] - start]
+            if j > i and bond_active[b] == 1 and abs(dirs[i, 0] * dirs[j, 0] + dirs[i, 1] * dirs[j, 1]
+                                                     + dirs[i, 2] * dirs[j, 2]) >= SPLIT_COS:
+                src[count] = i
+                dst[count] = j
+                count += 1
+    return src[:count], dst[:count]
+
+
+@njit(cache=True, inline="always")
+def side(x, p, c, n0, n1, n2):
+    """Signed distance of particle p from the plane through c with unit normal n."""
+    return (x[p, 0] - c[0]) * n0 + (x[p, 1] - c[1]) * n1 + (x[p, 2] - c[2]) * n2
+
+
+@njit(cache=True, inline="always")
+def mark(u, tag, stamp, near, count):
+    """Append particle u to near[:count] unless stamp already holds tag; returns the new count."""
+    if stamp[u] != tag:
+        stamp[u] = tag
+        near[count] = u
+        count += 1
+    return count
+
+
+@njit(cache=True)
+def cut_clusters(delta, members, cluster_start, particle_x, bond_start, bond_nbr, particle_lmax, particle_bmax,
+                 bond_active):
+    """Plane cut of each cluster (section 6) -> bond_active; returns the number of undirected bonds cut.
+
+    Clusters run in order and see the cuts of the ones before: a cluster whose most deformed bond is
+    already broken is skipped, so each crack is cut once per call and re-evaluated at the next one."""
+    stamp = np.zeros(particle_x.shape[0], np.int64)
+    near = np.empty(particle_x.shape[0], np.int64)
+    c = np.empty(3)
+    cut = 0
+    for k in range(cluster_start.shape[0] - 1):
+        mem = members[cluster_start[k]:cluster_start[k + 1]]
+        top = mem[0]
+        for p in mem:
+            if particle_lmax[p] > particle_lmax[top]:
+                top = p
+        b0 = particle_bmax[top]
+        if bond_active[b0] == 0:
+            continue
+        n0, n1, n2, ln = bond_vector(particle_x, top, bond_nbr[b0])
+        n0, n1, n2 = n0 / ln, n1 / ln, n2 / ln
+        c[:] = 0.0
+        for p in mem:
+            c += particle_x[p]
+        c /= mem.shape[0]
+        reach = 0.0
+        for p in mem:
+            reach = max(reach, (particle_x[p, 0] - c[0]) ** 2 + (particle_x[p, 1] - c[1]) ** 2
+                        + (particle_x[p, 2] - c[2]) ** 2)
+        reach = (math.sqrt(reach) + delta) ** 2
+        cut += cut_pair(b0, top, bond_start, bond_nbr, bond_active)
+        # The cluster and its families: every bond with an endpoint there is owned by one of them.
+        count = 0
+        for p in mem:
+            count = mark(p, k + 1, stamp, near, count)
+            for b in range(bond_start[p], bond_start[p + 1]):
+                count = mark(bond_nbr[b], k + 1, stamp, near, count)
+        for m in range(count):
+            p = near[m]
+            sp = side(particle_x, p, c, n0, n1, n2)
+            for b in range(bond_start[p], bond_start[p + 1]):
+                if bond_active[b] == 0:
+                    continue
+                q = bond_nbr[b]
+                sq = side(particle_x, q, c, n0, n1, n2)
+                if (sp < 0.0) == (sq < 0.0):
+                    continue
+                t = sp / (sp - sq)
+                d = 0.0
+                for a in range(3):
+                    d += (particle_x[p, a] + t * (particle_x[q, a] - particle_x[p, a]) - c[a]) ** 2
+                if d <= reach:
+                    cut += cut_pair(b, p, bond_start, bond_nbr, bond_active)
+    return cut
+
+
+def fracture_update(threshold, delta, start, end, particle_x, rest_x, bond_start, bond_nbr, bond_active,
+                    particle_lmax, particle_bmax) -> int:
+    """Cluster the candidates of one body (particles start..end-1) and cut each cluster's fracture plane.
+
+    Reads particle_lmax / particle_bmax from bond_criterion; updates bond_active in place (section 6).
+    Returns the number of undirected bonds cut."""
+    cand = start + np.flatnonzero((particle_lmax[start:end] > threshold) & (particle_bmax[start:end] >= 0))
+    if len(cand) == 0:
+        return 0
+    src, dst = candidate_edges(start, end, cand, particle_x, bond_start, bond_nbr, bond_active, particle_bmax)
+    graph = coo_matrix((np.ones(len(src)), (src, dst)), shape=(len(cand), len(cand)))
+    n_clusters, labels = connected_components(graph, directed=False)
+    order = np.argsort(labels, kind="stable")
+    cluster_start = np.zeros(n_clusters + 1, dtype=np.int64)
+    np.cumsum(np.bincount(labels, minlength=n_clusters), out=cluster_start[1:])
+    return cut_clusters(delta, cand[order], cluster_start, particle_x, bond_start, bond_nbr, particle_lmax,
+                        particle_bmax, bond_active)
+
+
+@njit(parallel=True, cache=True)
+def damage(bond_start, bond_active, particle_damage, particle_crack):
+    """Damage = broken / initial bonds -> particle_damage; 1 if any bond is broken -> particle_crack."""
+    for p in prange(bond_start.shape[0] - 1):
+        broken = 0
+        for b in range(bond_start[p], bond_start[p + 1]):
+            if bond_active[b] == 0:
+                broken += 1
+        initial = bond_start[p + 1] - bond_start[p]
+        particle_damage[p] = broken / initial if initial > 0 else 0.0
+        particle_crack[p] = 1 if broken > 0 else 0
+
+
+@njit(parallel=True, cache=True)
+def crack_particle_update(dt, gravity, t_new, colliders, lo, hi, particle_crack, particle_mass, particle_force,
+                          particle_x, particle_v, particle_C):
+    """Grid-free symplectic Euler of crack-surface particles (end of section 6) -> particle_x, _v, _C.
+
+    v += dt (f / m + g), collider response, x += dt v, then push-out and the box [lo, hi] (a separating
+    wall). C = 0: the particle takes no affine motion from a grid. Returns (max speed, non-finite count)
+    over the crack particles, like g2p."""
+    vmax = 0.0
+    bad = 0
+    for p in prange(particle_x.shape[0]):
+        if particle_crack[p] == 0:
+            continue
+        v = np.empty(3)
+        nrm = np.empty(3)
+        for a in range(3):
+            v[a] = particle_v[p, a] + dt * (particle_force[p, a] / particle_mass[p] + gravity[a])
+        if colliders.shape[0]:
+            collide_all(colliders, particle_x[p, 0], particle_x[p, 1], particle_x[p, 2], t_new, v, nrm)
+        for a in range(3):
+            particle_x[p, a] += dt * v[a]
+        if colliders.shape[0]:
+            push_out(colliders, particle_x[p], t_new, nrm)
+        for a in range(3):
+            if particle_x[p, a] < lo[a]:
+                particle_x[p, a] = lo[a]
+                v[a] = max(v[a], 0.0)
+            elif particle_x[p, a] > hi[a]:
+                particle_x[p, a] = hi[a]
+                v[a] = min(v[a], 0.0)
+            particle_v[p, a] = v[a]
+            for c in range(3):
+                particle_C[p, a, c] = 0.0
+        s = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        if not math.isfinite(s) or not math.isfinite(particle_x[p, 0] + particle_x[p, 1] + particle_x[p, 2]):
+            bad += 1
+        else:
+            vmax = max(vmax, s)
+    return vmax, bad
