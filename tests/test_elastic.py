@@ -23,8 +23,8 @@ def deform(sim, F):
     c = m.rest_x.mean(axis=0)
     x = (m.rest_x - c) @ np.asarray(F).T + c
     fbar = np.zeros((len(x), 3, 3))
-    averaged_deformation(0, len(x), x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, NONE_U1,
-                         m.particle_body, m.body_horizon, m.particle_Kinv, fbar)
+    averaged_deformation(0, len(x), x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, m.particle_body,
+                         m.body_horizon, m.particle_Kinv, fbar)
     mat = m.materials[0]
     delta = m.body_horizon[0]
     force = np.zeros_like(x)

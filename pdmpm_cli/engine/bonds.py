@@ -72,18 +72,14 @@ def invert_shape_tensor(k, out):
 
 
 @njit(parallel=True, cache=True)
-def reference_family_terms(start, end, rest_x, particle_volume, bond_start, bond_nbr, bond_active, particle_body,
-                           body_horizon, particle_omega, particle_Kinv):
-    """Weighted volume omega_p = sum_q w V_q and the inverse shape tensor K_p^-1 (eq. 4, second factor) of
-    particles start..end-1 over their intact bonds (all bonds when bond_active is empty)."""
-    has_active = bond_active.shape[0] > 0
-    for p in prange(start, end):
+def reference_family_terms(rest_x, particle_volume, bond_start, bond_nbr, particle_body, body_horizon,
+                           particle_omega, particle_Kinv):
+    """Weighted volume omega_p = sum_q w V_q and the inverse shape tensor K_p^-1 (eq. 4, second factor)."""
+    for p in prange(rest_x.shape[0]):
         delta = body_horizon[particle_body[p]]
         k = np.zeros((3, 3))
         om = 0.0
         for b in range(bond_start[p], bond_start[p + 1]):
-            if has_active and bond_active[b] == 0:
-                continue
             q = bond_nbr[b]
             x0, x1, x2, r = bond_vector(rest_x, p, q)
             wv = (1.0 - r / delta) * particle_volume[q]
@@ -97,17 +93,15 @@ def reference_family_terms(start, end, rest_x, particle_volume, bond_start, bond
 
 
 @njit(parallel=True, cache=True)
-def averaged_deformation(start, end, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_active, particle_body,
+def averaged_deformation(start, end, particle_x, rest_x, particle_volume, bond_start, bond_nbr, particle_body,
                          body_horizon, particle_Kinv, particle_Fbar):
-    """Fbar_p = (sum_q w V_q eta (x) xi) K_p^-1 over intact bonds (eq. 4 with METHOD.md's correction: eta, not
-    w, in front) for particles start..end-1."""
-    has_active = bond_active.shape[0] > 0
+    """Fbar_p = (sum_q w V_q eta (x) xi) K_p^-1 (eq. 4 with METHOD.md's correction: eta, not w, in front) for
+    particles start..end-1, over the whole reference family: only intact particles use Fbar (a particle with a
+    broken bond uses eta instead, elastic.py), so the sum always matches the K^-1 it is multiplied by."""
     for p in prange(start, end):
         delta = body_horizon[particle_body[p]]
         a = np.zeros((3, 3))
         for b in range(bond_start[p], bond_start[p + 1]):
-            if has_active and bond_active[b] == 0:
-                continue
             q = bond_nbr[b]
             x0, x1, x2, r = bond_vector(rest_x, p, q)
             wv = (1.0 - r / delta) * particle_volume[q]

@@ -19,6 +19,7 @@ from scipy.sparse.csgraph import connected_components
 
 from pdmpm_cli.engine.bonds import bond_vector
 from pdmpm_cli.engine.colliders import collide_all, push_out
+from pdmpm_cli.engine.transfer import particle_speed
 
 SPLIT_COS = math.cos(math.pi / 4.0)  # candidates whose bonds open in directions > 45 degrees apart: two cracks
 
@@ -278,8 +279,8 @@ def crack_particle_update(dt, gravity, t_new, colliders, lo, hi, particle_crack,
             particle_v[p, a] = v[a]
             for c in range(3):
                 particle_C[p, a, c] = 0.0
-        s = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-        if not math.isfinite(s) or not math.isfinite(particle_x[p, 0] + particle_x[p, 1] + particle_x[p, 2]):
+        s = particle_speed(v, particle_x, p)
+        if s < 0.0:
             bad += 1
         else:
             vmax = max(vmax, s)

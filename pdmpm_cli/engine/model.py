@@ -44,8 +44,8 @@ class Model:
         n = disc.n_particles
         omega = np.zeros(n)
         kinv = np.zeros((n, 3, 3))
-        reference_family_terms(0, n, disc.rest_x, disc.volume, disc.bond_start, disc.bond_nbr, np.zeros(0, np.uint8),
-                               disc.body, disc.body_horizon, omega, kinv)
+        reference_family_terms(disc.rest_x, disc.volume, disc.bond_start, disc.bond_nbr, disc.body,
+                               disc.body_horizon, omega, kinv)
         g = scene.grid
         lo, hi = np.asarray(g.domain.min, dtype=np.float64), np.asarray(g.domain.max, dtype=np.float64)
         cells = np.ceil((hi - lo) / g.cell_size - 1e-9).astype(int)

@@ -46,7 +46,7 @@ class Solver:
         for body in self.fbar_bodies:
             start, end = m.body_ranges[body]
             averaged_deformation(start, end, state.particle_x, m.rest_x, m.particle_volume, state.bond_start,
-                                 state.bond_nbr, state.bond_active, m.particle_body, m.body_horizon,
+                                 state.bond_nbr, m.particle_body, m.body_horizon,
                                  m.particle_Kinv, state.particle_Fbar)
 
     def material_phase(self, state: State, stage: str, kind: str, dt: float):

@@ -16,6 +16,15 @@ from pdmpm_cli.engine.colliders import collide_all, push_out, respond
 WALL = 3  # nodes within this many cells of the domain edge act as walls; particles stay >= 1 cell inside
 
 
+@njit(cache=True, inline="always")
+def particle_speed(v, particle_x, p):
+    """|v| of particle p after its update, or -1 when its velocity or position is not finite."""
+    s = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    if math.isfinite(s) and math.isfinite(particle_x[p, 0] + particle_x[p, 1] + particle_x[p, 2]):
+        return s
+    return -1.0
+
+
 @njit(parallel=True, cache=True)
 def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt, origin,
         inv_dx, box, grid_private, grid):
@@ -158,8 +167,8 @@ def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, part
                 particle_C[p, a, c] = b[a, c] * scale
         if colliders.shape[0] and not (has_pins and pin_mask[p]):
             push_out(colliders, particle_x[p], t_new, nrm)
-        s = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-        if not math.isfinite(s) or not math.isfinite(particle_x[p, 0] + particle_x[p, 1] + particle_x[p, 2]):
+        s = particle_speed(v, particle_x, p)
+        if s < 0.0:
             bad += 1
         else:
             vmax = max(vmax, s)
