@@ -48,14 +48,15 @@ class Plan:
     dt_reduced: bool  # the user's dt was above a bound and was reduced
     wave_speed: float  # fastest P-wave speed over bodies [m/s]
     memory_bytes: int
+    notes: tuple[str, ...] = ()  # what loading changed in the input (a flipped mesh, welded vertices)
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     def warnings(self) -> list[str]:
         if not self.dt_reduced:
-            return []
-        return [
+            return list(self.notes)
+        return [*self.notes,
             f"simulation.dt = {self.dt_user:.3g} s is above the stability bound; using {self.dt_max:.3g} s "
             f"(CFL bound {self.dt_cfl:.3g} s, bond bound {self.dt_bond:.3g} s)"
         ]
@@ -126,4 +127,5 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
         grid_nodes=nodes, cell_size=scene.grid.cell_size,
         frames=max(1, int(round(sim.duration * sim.fps))), frame_dt=frame_dt, dt_user=sim.dt,
         dt_cfl=dt_cfl, dt_bond=dt_bond, dt_max=dt_max, dt_reduced=reduced, wave_speed=wave, memory_bytes=memory,
+        notes=tuple(disc.notes),
     )

@@ -10,6 +10,7 @@ import numpy as np
 
 from pdmpm_cli.engine.materials.plastic import particle_plastic_strain
 from pdmpm_cli.engine.discretize import Discretization, discretize
+from pdmpm_cli.engine.embedding import mesh_positions
 from pdmpm_cli.engine.model import Model, State
 from pdmpm_cli.engine.solver import Solver
 from pdmpm_cli.errors import InputError
@@ -52,7 +53,9 @@ class Reporter(Protocol):
     def frame(self, index: int, state: State) -> None: ...
 
 
-def static_fields(model: Model) -> dict[str, np.ndarray]:
+def static_fields(model: Model, meshes=()) -> dict[str, np.ndarray]:
+    from pdmpm_cli.io.ply import mesh_static_fields
+
     fields = {
         "particle_X": model.rest_x,
         "particle_volume": model.particle_volume,
@@ -62,12 +65,14 @@ def static_fields(model: Model) -> dict[str, np.ndarray]:
     }
     if len(model.pin_mask):
         fields["particle_pinned"] = model.pin_mask.astype(np.uint8)
-    return fields
+    return fields | mesh_static_fields(meshes)
 
 
-def frame_fields(state: State, names) -> dict[str, np.ndarray]:
-    """The per-frame fields the scene selected, by name (particle_x always)."""
+def frame_fields(state: State, names, model: Model | None = None, meshes=()) -> dict[str, np.ndarray]:
+    """The per-frame fields the scene selected, by name (particle_x always; vertex_x when meshes ride along)."""
     out = {"particle_x": state.particle_x}
+    if meshes:
+        out["vertex_x"] = np.concatenate(mesh_positions(model, state, meshes))
     for name in names:
         if name == "particle_speed":
             out[name] = np.linalg.norm(state.particle_v, axis=1)
@@ -88,16 +93,17 @@ def prepare_output_dir(out: Path, overwrite: bool):
                              f"another folder with --out")
         for name in ("run.h5",):
             (out / name).unlink(missing_ok=True)
-        vtk = out / "vtk"
-        if vtk.is_dir():
-            for f in vtk.iterdir():
-                f.unlink()
+        for sub in ("vtk", "meshes"):
+            if (out / sub).is_dir():
+                for f in (out / sub).iterdir():
+                    f.unlink()
     out.mkdir(parents=True, exist_ok=True)
 
 
 def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwrite: bool = False) -> State:
     """Run the whole scene, writing frame 0 (the initial state) and every frame after it."""
     from pdmpm_cli.io.hdf5 import Hdf5RunWriter
+    from pdmpm_cli.io.ply import MeshSeriesWriter
     from pdmpm_cli.io.sink import FrameSink
     from pdmpm_cli.io.vtk import VtkSeriesWriter
 
@@ -106,21 +112,24 @@ def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwr
     state = State.allocate(model, prep.disc, plan.fields)
     solver = Solver(model, plan)
     solver.start(state)
-    static = static_fields(model)
+    meshes = prep.disc.meshes
+    static = static_fields(model, meshes)
     writers = []
     if scene.output.hdf5:
         writers.append(Hdf5RunWriter(out / "run.h5", scene_text=prep.text, plan=json.loads(json.dumps(
             plan.to_dict(), default=_jsonable)), static=static, compression=scene.output.compression))
     if scene.output.vtk:
         writers.append(VtkSeriesWriter(out / "vtk", static=static))
+    if meshes and scene.output.meshes:
+        writers.append(MeshSeriesWriter(out / "meshes", meshes))
     if reporter:
         reporter.start(plan)
     on_substep = reporter.substep if reporter else None
     with FrameSink(writers) as sink:
-        sink.submit(0, 0.0, frame_fields(state, scene.output.fields))
+        sink.submit(0, 0.0, frame_fields(state, scene.output.fields, model, meshes))
         for f in range(1, plan.frames + 1):
             solver.advance(state, f * plan.frame_dt, on_substep)
-            sink.submit(f, state.time, frame_fields(state, scene.output.fields))
+            sink.submit(f, state.time, frame_fields(state, scene.output.fields, model, meshes))
             if reporter:
                 reporter.frame(f, state)
     return state

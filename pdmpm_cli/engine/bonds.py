@@ -25,15 +25,21 @@ def bond_vector(x, p, q):
     return d0, d1, d2, math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
 
 
-def build_families(rest_x: np.ndarray, body_ranges, body_horizon) -> tuple[np.ndarray, np.ndarray]:
-    """CSR families: bonds within each body's horizon, both directions stored."""
+def build_families(rest_x: np.ndarray, body_ranges, body_horizon, body_pairs=None) -> tuple[np.ndarray, np.ndarray]:
+    """CSR families, both directions stored: bonds within each body's horizon, or, where `body_pairs[i]` is
+    given ((m, 2) local indices, Voronoi mode), exactly those pairs."""
     src, dst = [], []
-    for (start, end), delta in zip(body_ranges, body_horizon):
+    for i, ((start, end), delta) in enumerate(zip(body_ranges, body_horizon)):
         pts = rest_x[start:end]
-        pairs = cKDTree(pts).query_pairs(delta, output_type="ndarray")
-        if len(pairs):
-            d = np.linalg.norm(pts[pairs[:, 1]] - pts[pairs[:, 0]], axis=1)
-            pairs = pairs[d < delta * (1.0 - 1e-12)] + start
+        given = body_pairs[i] if body_pairs is not None else None
+        if given is not None:
+            pairs = np.asarray(given, dtype=np.int64).reshape(-1, 2) + start
+        else:
+            pairs = cKDTree(pts).query_pairs(delta, output_type="ndarray")
+            if len(pairs):
+                d = np.linalg.norm(pts[pairs[:, 1]] - pts[pairs[:, 0]], axis=1)
+                pairs = pairs[d < delta * (1.0 - 1e-12)]
+            pairs = pairs + start
         src += [pairs[:, 0], pairs[:, 1]]
         dst += [pairs[:, 1], pairs[:, 0]]
     n = len(rest_x)

@@ -1,15 +1,17 @@
-"""Scene -> material points and bonds: sampling each body's shape, families, pins, initial velocity."""
+"""Scene -> material points and bonds: sampling each body in its geometry mode (cloud, shell, Voronoi), families,
+pins, initial velocity, and the meshes that ride along with the points (shell surfaces, Voronoi cells)."""
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from pdmpm_cli.engine.bonds import build_families, drop_bonds
 from pdmpm_cli.errors import InputError
+from pdmpm_cli.geometry import bunny, sampling, shapes, shell, voronoi
 from pdmpm_cli.geometry import mesh as meshes
-from pdmpm_cli.geometry import sampling, shapes
 from pdmpm_cli.scene.schema import Scene
 
 
@@ -22,16 +24,26 @@ class Region:
     hi: np.ndarray
 
 
+def load_mesh_shape(shape, base_dir: Path, allow_open: bool = False) -> meshes.SurfaceMesh:
+    """A scene's `type: mesh` shape, its path relative to the scene file, placed."""
+    path = Path(shape.path)
+    path = path if path.is_absolute() else base_dir / path
+    return meshes.load_surface_mesh(path, scale=shape.scale, translate=shape.translate,
+                                    R=shapes.rotation_matrix(shape.rotation), allow_open=allow_open)
+
+
 def shape_region(shape, base_dir: Path) -> Region:
-    """Inside test and bounds of a scene shape (primitive or closed mesh)."""
+    """Inside test and bounds of a scene shape (primitive, bunny or closed mesh)."""
     if shape.type == "mesh":
-        path = Path(shape.path)
-        path = path if path.is_absolute() else base_dir / path
-        mesh = meshes.load_surface_mesh(path, scale=shape.scale, translate=shape.translate,
-                                        R=shapes.rotation_matrix(shape.rotation))
+        mesh = load_mesh_shape(shape, base_dir)
         lo, hi = meshes.mesh_bounds(mesh)
         return Region(lambda p: meshes.inside_mesh(mesh, p), lo, hi)
+    if shape.type == "sheet":
+        raise InputError("a sheet has no inside: use it as the surface of a `mode: shell` body")
     c = np.asarray(shape.center, dtype=np.float64)
+    if shape.type == "bunny":
+        R = shapes.rotation_matrix(shape.rotation)
+        return Region(lambda p: bunny.bunny_inside(p, c, shape.height, R), *bunny.bunny_bounds(c, shape.height, R))
     if shape.type == "sphere":
         return Region(lambda p: shapes.sphere_inside(p, c, shape.radius), *shapes.sphere_bounds(c, shape.radius))
     R = shapes.rotation_matrix(shape.rotation)
@@ -43,6 +55,21 @@ def shape_region(shape, base_dir: Path) -> Region:
                       *shapes.cylinder_bounds(c, shape.radius, shape.height, R))
     return Region(lambda p: shapes.capsule_inside(p, c, shape.radius, shape.length, R),
                   *shapes.capsule_bounds(c, shape.radius, shape.length, R))
+
+
+@dataclass
+class EmbeddedMesh:
+    """A triangle mesh carried by the material points: vertex v sits at sum_i w_vi (x_i + F_i (X_v - X_i)) over
+    its particles i (exact for any affine motion of them); F_i is the particle's local deformation."""
+
+    name: str
+    body: int
+    kind: str  # "surface" (shell mode) or "cells" (Voronoi polyhedra)
+    vertices: np.ndarray  # (nv, 3) rest positions X_v [m]
+    triangles: np.ndarray  # (nt, 3) int64, outward
+    particles: np.ndarray  # (nv, k) int64 global particle indices
+    weights: np.ndarray  # (nv, k) float64, rows sum to 1
+    triangle_cell: np.ndarray  # (nt,) int64 global particle index of the Voronoi cell, or (0,)
 
 
 @dataclass
@@ -62,6 +89,8 @@ class Discretization:
     bond_nbr: np.ndarray  # (n_bonds,) int32
     pin_mask: np.ndarray  # (n,) bool, or (0,) when the scene has no pins
     pin_velocity: np.ndarray  # (n, 3), or (0, 3)
+    meshes: list[EmbeddedMesh]  # shell surfaces and Voronoi cells, in body order
+    notes: list[str]  # repairs made to input meshes, reported as warnings
 
     @property
     def n_particles(self) -> int:
@@ -72,25 +101,145 @@ class Discretization:
         return len(self.bond_nbr)
 
 
+@dataclass
+class BodySample:
+    """One body's material points before they are merged: positions, volumes, spacing, horizon."""
+
+    x: np.ndarray
+    volume: np.ndarray
+    h: float
+    delta: float
+    pairs: np.ndarray | None = None  # explicit bonds (Voronoi: cells sharing a face), local indices
+    mesh: EmbeddedMesh | None = None  # particle indices local to the body until merged
+    repairs: list[str] = field(default_factory=list)  # what loading changed in an input mesh
+
+
+def primitive_kwargs(shape) -> dict:
+    """Size parameters of a primitive shape, as shell.primitive_surface takes them."""
+    names = {"box": ("size",), "sheet": ("size",), "sphere": ("radius",), "cylinder": ("radius", "height"),
+             "capsule": ("radius", "length")}[shape.type]
+    return {k: getattr(shape, k) for k in names}
+
+
+def sample_cloud(body, base_dir: Path, dx: float, rng) -> BodySample:
+    """Cloud mode: fill the shape with a (jittered) lattice, minus the cutouts."""
+    geo = body.geometry
+    h = geo.spacing or 0.5 * dx
+    region = shape_region(geo.shape, base_dir)
+    x = sampling.fill_shape(region.inside, region.lo, region.hi, h, sampling=geo.sampling, rng=rng,
+                            what=f"body '{body.name}'")
+    for cut in geo.cutouts:
+        x = x[~shape_region(cut, base_dir).inside(x)]
+    if not len(x):
+        raise InputError(f"body '{body.name}': no particles: its shape is empty after the cutouts, or smaller "
+                         f"than the spacing {h:.4g} m; enlarge the shape or lower geometry.spacing")
+    return BodySample(x, np.full(len(x), h**3), h, geo.horizon * h)
+
+
+def body_surface(shape, base_dir: Path, edge: float, allow_open: bool) -> meshes.SurfaceMesh:
+    """The triangle surface of a shape: a mesh file as it is, a primitive or the bunny triangulated."""
+    if shape.type == "mesh":
+        return load_mesh_shape(shape, base_dir, allow_open=allow_open)
+    c = np.asarray(shape.center, dtype=np.float64)
+    R = shapes.rotation_matrix(getattr(shape, "rotation", (0.0, 0.0, 0.0)))
+    if shape.type == "bunny":
+        return bunny.bunny_surface(c, shape.height, R, edge)
+    return shell.primitive_surface(shape.type, center=c, R=R, edge=edge, **primitive_kwargs(shape))
+
+
+def sample_shell(body, base_dir: Path, dx: float, rng) -> BodySample:
+    """Shell mode: points on the surface and in layers under it; the surface's vertices ride along."""
+    geo = body.geometry
+    h = geo.spacing or 0.5 * dx
+    surface = body_surface(geo.surface, base_dir, geo.edge or h, allow_open=True)
+    sample = shell.shell_particles(surface, h, geo.layers, rng, what=f"body '{body.name}'",
+                                   first_depth=0.5 if geo.layers > 1 else 0.0)
+    sample = shell.thin_crowded(sample, h)
+    idx, w = shell.embed_points(surface.vertices, sample.points)
+    mesh = EmbeddedMesh(body.name, -1, "surface", surface.vertices, surface.triangles, idx, w,
+                        np.zeros(0, np.int64))
+    repairs = list(surface.repairs)
+    if not surface.closed and geo.layers > 1:
+        repairs.append(f"the surface is open (it has holes or edges), so its {geo.layers} layers go against its "
+                       f"normals; if it should be closed, fill its holes (Blender: Select > All by Trait > Non "
+                       f"Manifold, then Face > Fill)")
+    return BodySample(sample.points, sample.volumes, h, geo.horizon * h, mesh=mesh, repairs=repairs)
+
+
+def convex_planes(shape, base_dir: Path, resolution: int, name: str) -> np.ndarray:
+    """The half-spaces of a convex shape; curved primitives become inscribed polytopes."""
+    if shape.type == "box":
+        return voronoi.box_planes(shape.center, shape.size, shapes.rotation_matrix(shape.rotation))
+    if shape.type == "bunny":
+        raise InputError(f"body '{name}': Voronoi mode needs a convex shape and the bunny is not convex; use "
+                         f"mode: cloud or mode: shell for it")
+    if shape.type == "mesh":
+        surface = load_mesh_shape(shape, base_dir)
+        planes = voronoi.polytope_from_points(surface.vertices)
+        hull, vol = voronoi.polytope_volume(planes), meshes.mesh_volume(surface)
+        if hull > vol * (1.0 + 1e-3):
+            raise InputError(f"body '{name}': Voronoi mode needs a convex shape, and {shape.path} is not convex (its "
+                             f"convex hull is {100 * (hull / vol - 1):.2g} % larger than it); use mode: cloud, or "
+                             f"split the mesh into convex parts as separate bodies")
+        return planes
+    edge = 2.0 * np.pi * shape.radius / resolution
+    c = np.asarray(shape.center, dtype=np.float64)
+    R = shapes.rotation_matrix(getattr(shape, "rotation", (0.0, 0.0, 0.0)))
+    surface = shell.primitive_surface(shape.type, center=c, R=R, edge=edge, **primitive_kwargs(shape))
+    return voronoi.polytope_from_points(surface.vertices)
+
+
+def sample_voronoi(body, base_dir: Path, dx: float, rng) -> BodySample:
+    """Voronoi mode: clipped cells; their centroids are the points, bonds join cells that share a face.
+
+    The influence w = 1 - |xi| / delta needs delta beyond the longest bond: delta = max(2 h, 1.05 max |xi|)."""
+    geo = body.geometry
+    spacing = geo.spacing or (None if geo.count else 0.5 * dx)
+    planes = convex_planes(geo.shape, base_dir, geo.resolution, body.name)
+    cells = voronoi.voronoi_cells(planes, spacing, geo.count, rng, what=f"body '{body.name}'")
+    x = cells.centroids
+    h = spacing or float(np.mean(cells.volumes) ** (1.0 / 3.0))
+    longest = float(np.linalg.norm(x[cells.pairs[:, 1]] - x[cells.pairs[:, 0]], axis=1).max()) if len(cells.pairs) else h
+    mesh = EmbeddedMesh(body.name, -1, "cells", cells.poly_vertices, cells.poly_triangles,
+                        cells.vertex_cell.reshape(-1, 1).astype(np.int64), np.ones((len(cells.vertex_cell), 1)),
+                        cells.poly_cell.astype(np.int64))
+    return BodySample(x, cells.volumes, h, max(2.0 * h, 1.05 * longest), pairs=cells.pairs, mesh=mesh)
+
+
+SAMPLERS = {"cloud": sample_cloud, "shell": sample_shell, "voronoi": sample_voronoi}
+
+
+def pin_particles(pin, body, sample: BodySample, base_dir: Path) -> np.ndarray:
+    """Mask of the body's particles a pin holds: inside its region, or within one spacing of its vertices."""
+    if pin.region is not None:
+        return shape_region(pin.region, base_dir).inside(sample.x)
+    verts = sample.mesh.vertices
+    bad = [v for v in pin.vertices if not 0 <= v < len(verts)]
+    if bad:
+        raise InputError(f"body '{body.name}': pin vertices {bad[:5]} do not exist; the surface mesh has "
+                         f"{len(verts)} vertices (indices 0 to {len(verts) - 1})")
+    tree = cKDTree(sample.x)
+    near = tree.query_ball_point(verts[pin.vertices], sample.h)
+    nearest = tree.query(verts[pin.vertices])[1]  # a vertex farther than h from every point holds its nearest
+    mask = np.zeros(len(sample.x), dtype=bool)
+    for found, first in zip(near, nearest):
+        mask[found or [first]] = True
+    return mask
+
+
 def discretize(scene: Scene, base_dir: Path) -> Discretization:
     """Sample every body, check it fits the domain, and build its bonds."""
     rng = np.random.default_rng(scene.simulation.seed)
     dx = scene.grid.cell_size
     inner_lo = np.asarray(scene.grid.domain.min) + 3.5 * dx
     inner_hi = np.asarray(scene.grid.domain.max) - 3.5 * dx
-    xs, vs, grads, masses, vols, ranges, spacing, horizon = [], [], [], [], [], [], [], []
-    pinned, pin_v = [], []
+    xs, vs, grads, masses, vols, ranges, spacing, horizon, pairs, embedded = [], [], [], [], [], [], [], [], [], []
+    pinned, pin_v, notes = [], [], []
     start = 0
-    for body in scene.bodies:
-        geo, mat = body.geometry, body.material
-        h = geo.spacing or 0.5 * dx
-        region = shape_region(geo.shape, base_dir)
-        x = sampling.fill_shape(region.inside, region.lo, region.hi, h, sampling=geo.sampling, rng=rng)
-        for cut in geo.cutouts:
-            x = x[~shape_region(cut, base_dir).inside(x)]
-        if not len(x):
-            raise InputError(f"body '{body.name}': no particles: its shape is empty after the cutouts, or smaller "
-                             f"than the spacing {h:.4g} m; enlarge the shape or lower geometry.spacing")
+    for b, body in enumerate(scene.bodies):
+        sample = SAMPLERS[body.geometry.mode](body, base_dir, dx, rng)
+        notes += [f"body '{body.name}': {r}" for r in sample.repairs]
+        x = sample.x
         bad = np.any((x < inner_lo) | (x > inner_hi), axis=1)
         if bad.any():
             raise InputError(
@@ -107,25 +256,33 @@ def discretize(scene: Scene, base_dir: Path) -> Discretization:
         mask = np.zeros(n, dtype=bool)
         pv = np.zeros((n, 3))
         for pin in body.pins:
-            inside = shape_region(pin.region, base_dir).inside(x) & ~mask
+            inside = pin_particles(pin, body, sample, base_dir) & ~mask
             mask |= inside
             pv[inside] = pin.velocity
             v[inside] = pin.velocity
             grad[inside] = 0.0
+        if sample.mesh is not None:
+            m = sample.mesh
+            m.body = b
+            m.particles = m.particles + start
+            if len(m.triangle_cell):
+                m.triangle_cell = m.triangle_cell + start
+            embedded.append(m)
         xs.append(x)
         vs.append(v)
         grads.append(grad)
-        vols.append(np.full(n, h**3))
-        masses.append(np.full(n, mat.density * h**3))
+        vols.append(sample.volume)
+        masses.append(body.material.density * sample.volume)
         pinned.append(mask)
         pin_v.append(pv)
         ranges.append((start, start + n))
-        spacing.append(h)
-        horizon.append(geo.horizon * h)
+        spacing.append(sample.h)
+        horizon.append(sample.delta)
+        pairs.append(sample.pairs)
         start += n
     rest_x = np.concatenate(xs)
     body_ids = np.concatenate([np.full(e - s, i, dtype=np.int32) for i, (s, e) in enumerate(ranges)])
-    bond_start, bond_nbr = build_families(rest_x, ranges, horizon)
+    bond_start, bond_nbr = build_families(rest_x, ranges, horizon, pairs)
     bond_start, bond_nbr = cut_bonds_through(scene, base_dir, rest_x, ranges, bond_start, bond_nbr)
     has_pins = any(m.any() for m in pinned)
     return Discretization(
@@ -142,6 +299,8 @@ def discretize(scene: Scene, base_dir: Path) -> Discretization:
         bond_nbr=bond_nbr,
         pin_mask=np.concatenate(pinned) if has_pins else np.zeros(0, dtype=bool),
         pin_velocity=np.concatenate(pin_v) if has_pins else np.zeros((0, 3)),
+        meshes=embedded,
+        notes=notes,
     )
 
 
@@ -150,7 +309,7 @@ def cut_bonds_through(scene: Scene, base_dir: Path, rest_x, ranges, bond_start, 
     notch narrower than the horizon is still a real notch."""
     keep = np.ones(len(bond_nbr), dtype=bool)
     for body, (start, end) in zip(scene.bodies, ranges):
-        cuts = [shape_region(c, base_dir) for c in body.geometry.cutouts]
+        cuts = [shape_region(c, base_dir) for c in getattr(body.geometry, "cutouts", [])]
         if not cuts:
             continue
         b0, b1 = bond_start[start], bond_start[end]

@@ -33,6 +33,8 @@ class Model:
     fracture: list  # validated fracture section of each body, or None
     colliders: np.ndarray  # (n_colliders, ROW) table, see engine.colliders
     gravity: np.ndarray
+    wind_velocity: np.ndarray  # (3,) [m/s]
+    wind_drag: float  # [1/s], 0 without wind
     origin: np.ndarray
     dx: float
     grid_shape: tuple[int, int, int]  # nodes per axis
@@ -57,6 +59,8 @@ class Model:
             body_horizon=disc.body_horizon, body_spacing=disc.body_spacing, materials=[b.material for b in scene.bodies],
             fracture=[b.fracture for b in scene.bodies],
             colliders=collider_table(scene.colliders), gravity=np.asarray(scene.gravity, dtype=np.float64),
+            wind_velocity=np.asarray(scene.wind.velocity if scene.wind else (0.0, 0.0, 0.0), dtype=np.float64),
+            wind_drag=scene.wind.drag if scene.wind else 0.0,
             origin=lo, dx=g.cell_size, grid_shape=tuple(int(c) + 1 for c in cells),
             wall_boundary=BOUNDARY_CODES[g.boundary], wall_friction=g.friction,
         )

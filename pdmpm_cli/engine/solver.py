@@ -82,8 +82,8 @@ class Solver:
 
     def grid_update(self, state: State, dt: float):
         m = self.model
-        grid_update(state.grid, dt, m.gravity, m.origin, m.dx, self.box, state.time + dt, m.colliders,
-                    m.wall_boundary, m.wall_friction)
+        grid_update(state.grid, dt, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, self.box,
+                    state.time + dt, m.colliders, m.wall_boundary, m.wall_friction)
 
     def g2p(self, state: State, dt: float):
         m = self.model
@@ -167,13 +167,14 @@ class Solver:
 
     def start(self, state: State):
         """Set the energy budget the runaway check measures against [J]: what gravity (over the domain's
-        largest extent), the colliders' motion and the initial motion can legitimately supply."""
+        largest extent), the colliders' motion (and the wind's) and the initial motion can legitimately supply."""
         for i, b in enumerate(self.plan.bodies):
             if MATERIALS[b.model].init is not None:
                 MATERIALS[b.model].init(self.model, state, i)
         m = self.model
         extent = float(np.max(np.asarray(self.plan.grid_nodes) - 1) * m.dx)
         v_coll = float(np.abs(m.colliders[:, 10:13]).max()) if len(m.colliders) else 0.0
+        v_coll = max(v_coll, float(np.linalg.norm(m.wind_velocity)))  # the wind can bring material to its speed
         mass = float(m.particle_mass.sum())
         self.energy_budget = self.kinetic_energy(state) + mass * (np.linalg.norm(m.gravity) * extent + v_coll**2)
         self.energy_budget += self.strain_energy(state) + 1e-12 * mass

@@ -86,8 +86,10 @@ def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, parti
 
 
 @njit(parallel=True, cache=True)
-def grid_update(grid, dt, gravity, origin, dx, box, t_new, colliders, wall_boundary, wall_friction):
-    """Grid momentum -> velocity, v_I += dt g (step 3), domain walls and colliders (step 4); in place."""
+def grid_update(grid, dt, gravity, wind, drag, origin, dx, box, t_new, colliders, wall_boundary, wall_friction):
+    """Grid momentum -> velocity, v_I += dt g (step 3) and the wind's drag towards `wind` at rate `drag`
+    (implicit, stable for any dt), domain walls and colliders (step 4); in place."""
+    relax = 1.0 / (1.0 + dt * drag)
     nx, ny, nz = grid.shape[0], grid.shape[1], grid.shape[2]
     hi = (nx - 1 - WALL, ny - 1 - WALL, nz - 1 - WALL)
     for i in prange(box[0], box[1]):
@@ -100,7 +102,7 @@ def grid_update(grid, dt, gravity, origin, dx, box, t_new, colliders, wall_bound
                 if m <= 0.0:
                     continue
                 for a in range(3):
-                    v[a] = node[1 + a] / m + dt * gravity[a]
+                    v[a] = (node[1 + a] / m + dt * (gravity[a] + drag * wind[a])) * relax
                 idx = (i, j, k)
                 for a in range(3):
                     side = 1.0 if idx[a] < WALL else (-1.0 if idx[a] > hi[a] else 0.0)

@@ -1,4 +1,4 @@
-"""Closed triangle surface meshes: loading, validation/repair, volume and inside test.
+"""Triangle surface meshes (closed; open ones on request): loading, validation/repair, volume and inside test.
 
 Loading (:func:`load_surface_mesh`)
     Any format meshio reads (OBJ, STL, PLY, OFF, VTK/VTU, ...). Quads and polygons are
@@ -17,6 +17,10 @@ Validation (each failure is an :class:`InputError` naming the file and the fix)
     * inconsistent orientation (two adjacent triangles traverse their shared edge in the same
       direction);
     * zero enclosed volume.
+
+    With ``allow_open=True`` (cloth / shell surfaces) boundary edges are accepted and
+    ``SurfaceMesh.closed`` is False; the other checks stay, the zero-volume check and the
+    inverted-surface flip below apply to closed surfaces only (an open surface has no inside).
 
 Repair (no error, recorded in ``SurfaceMesh.repairs``)
     A consistently oriented but *inverted* surface (signed volume < 0: normals point inwards)
@@ -55,6 +59,7 @@ __all__ = [
     "SurfaceMesh",
     "load_surface_mesh",
     "validate_surface",
+    "is_closed",
     "mesh_volume",
     "mesh_bounds",
     "winding_number",
@@ -97,6 +102,8 @@ class SurfaceMesh:
     ``vertices`` (nv, 3) float64, ``triangles`` (nt, 3) int64 (counter-clockwise seen from
     outside), ``path`` the resolved source file (``""`` if built in memory), ``repairs``
     human-readable notes of what loading changed (welds, dropped faces, flipped orientation).
+    ``closed`` is False for an open surface accepted with ``allow_open=True`` (its
+    orientation is as given and the inside test is meaningless for it).
     Treat the arrays as read-only: the inside-test hierarchy is cached on the object.
     """
 
@@ -104,6 +111,7 @@ class SurfaceMesh:
     triangles: np.ndarray
     path: str = ""
     repairs: list[str] = field(default_factory=list)
+    closed: bool = True
     _bvh: tuple | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self):
@@ -261,10 +269,14 @@ def _edge_examples(V, edges, k=2) -> str:
     return "; ".join(f"{_fmt_point(V[u])} - {_fmt_point(V[v])}" for u, v in edges[:k])
 
 
-def validate_surface(V: np.ndarray, T: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
+def validate_surface(
+    V: np.ndarray, T: np.ndarray, where: str, *, allow_open: bool = False
+) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Check/repair a triangle surface (see module doc). Returns (V, T, repairs).
 
     ``where`` names the source in error messages (e.g. "mesh file /abs/path.stl").
+    ``allow_open`` accepts boundary edges (a cloth); use :func:`is_closed` on the result to
+    know whether there were any.
     """
     repairs: list[str] = []
     V = np.ascontiguousarray(V, dtype=np.float64)
@@ -314,7 +326,7 @@ def validate_surface(V: np.ndarray, T: np.ndarray, where: str) -> tuple[np.ndarr
     uniq, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
     problems = []
     boundary = counts == 1
-    if boundary.any():
+    if boundary.any() and not allow_open:
         e = uniq[boundary]
         edges = np.stack([e // nv, e % nv], axis=1)
         problems.append(
@@ -340,7 +352,10 @@ def validate_surface(V: np.ndarray, T: np.ndarray, where: str) -> tuple[np.ndarr
             f"e.g. {_edge_examples(V, edges)}. Fix: {_FIX_ORIENT}"
         )
     if problems:
-        raise InputError(f"{where} is not a valid closed surface: " + " Also: ".join(problems))
+        kind = "surface" if allow_open else "closed surface"
+        raise InputError(f"{where} is not a valid {kind}: " + " Also: ".join(problems))
+    if boundary.any():  # open (allowed): no inside, so no volume check and no flip
+        return V, np.ascontiguousarray(T), repairs
 
     # --- orientation sign
     vol = mesh_volume(SurfaceMesh(V, T))
@@ -355,11 +370,27 @@ def validate_surface(V: np.ndarray, T: np.ndarray, where: str) -> tuple[np.ndarr
     return V, np.ascontiguousarray(T), repairs
 
 
-def load_surface_mesh(path, scale=1.0, translate=(0.0, 0.0, 0.0), R=None) -> SurfaceMesh:
+def is_closed(T: np.ndarray) -> bool:
+    """True if every edge of the triangles ``T`` is used by at least two of them (no boundary)."""
+    T = np.asarray(T, dtype=np.int64)
+    if T.shape[0] == 0:
+        return False
+    u = T.reshape(-1)
+    v = T[:, [1, 2, 0]].reshape(-1)
+    lo_, hi_ = np.minimum(u, v), np.maximum(u, v)
+    _, counts = np.unique(lo_ * (int(T.max()) + 1) + hi_, return_counts=True)
+    return bool(np.all(counts >= 2))
+
+
+def load_surface_mesh(
+    path, scale=1.0, translate=(0.0, 0.0, 0.0), R=None, *, allow_open: bool = False
+) -> SurfaceMesh:
     """Read, place, weld, validate and (if inverted) flip a closed triangle surface.
 
     ``x = R @ (scale * x_file) + translate``; ``scale`` is a positive number or 3 positive
     numbers (per axis), ``R`` a 3x3 rotation matrix (default identity), ``translate`` (3,).
+    ``allow_open`` also accepts a surface with holes / boundary (a cloth): ``closed`` is then
+    False and its orientation is kept as in the file.
     Raises :class:`InputError` naming the (resolved) path for any problem.
     """
     from pdmpm_cli.geometry.shapes import _rotation, _vec3
@@ -385,8 +416,8 @@ def load_surface_mesh(path, scale=1.0, translate=(0.0, 0.0, 0.0), R=None) -> Sur
     pts, tris = _read_faces(resolved)
     pts, tris = _compact(pts, tris)
     V = (pts * s) @ M.T + t
-    V, T, repairs = validate_surface(V, tris, where)
-    return SurfaceMesh(V, T, str(resolved), repairs)
+    V, T, repairs = validate_surface(V, tris, where, allow_open=allow_open)
+    return SurfaceMesh(V, T, str(resolved), repairs, closed=is_closed(T))
 
 
 # ----------------------------------------------------------------------------------------

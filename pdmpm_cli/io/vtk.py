@@ -24,11 +24,11 @@ VTU_COMPRESSIONS = (None, "zlib", "lzma")
 
 
 def _point_data(fields: dict[str, np.ndarray], n: int) -> dict[str, np.ndarray]:
-    """Per-particle fields as VTK point data; fields not shaped (n, ...) are not per-particle."""
+    """Per-particle fields (named particle_*, shaped (n, ...)) as VTK point data; mesh fields go to PLY files."""
     out: dict[str, np.ndarray] = {}
     for name, value in fields.items():
         array = np.asarray(value)
-        if name == POSITION_FIELD or array.ndim == 0 or array.shape[0] != n:
+        if name == POSITION_FIELD or not name.startswith("particle_") or array.ndim == 0 or array.shape[0] != n:
             continue
         if array.dtype == np.bool_:
             array = array.astype(np.uint8)

@@ -69,8 +69,32 @@ class MeshShape(Strict):
     rotation: Vec3 = Field((0.0, 0.0, 0.0), description="Rotation about x, y then z through the origin [degrees].")
 
 
+class BunnyShape(Placed):
+    """The procedural bunny shipped with pdmpm (pdmpm_cli.geometry.bunny): sits upright (+y), faces +x."""
+
+    type: Literal["bunny"]
+    height: float = Field(gt=0, description="Total height of the bunny, feet to ear tips [m].")
+
+
+class SheetShape(Placed):
+    """An open flat rectangle (a cloth), only for `mode: shell`; its normal is the local +z axis."""
+
+    type: Literal["sheet"]
+    size: tuple[float, float] = Field(description="Full edge lengths along the local x and y axes [m].")
+
+    @model_validator(mode="after")
+    def _positive(self):
+        if min(self.size) <= 0:
+            raise ValueError(f"size must be positive in both axes (got {list(self.size)})")
+        return self
+
+
 Shape = Annotated[
-    Union[BoxShape, SphereShape, CylinderShape, CapsuleShape, MeshShape], Field(discriminator="type")
+    Union[BoxShape, SphereShape, CylinderShape, CapsuleShape, MeshShape, BunnyShape], Field(discriminator="type")
+]
+Surface = Annotated[
+    Union[SheetShape, BoxShape, SphereShape, CylinderShape, CapsuleShape, MeshShape, BunnyShape],
+    Field(discriminator="type"),
 ]
 
 
@@ -99,7 +123,49 @@ class CloudGeometry(Strict):
     )
 
 
-Geometry = Annotated[Union[CloudGeometry], Field(discriminator="mode")]
+class ShellGeometry(Strict):
+    """Shell mode (paper section 7): material points on a surface and in layers under it along the inward
+    normal. layers = 1 is a cloth (open surfaces allowed). The surface's vertices ride along with the points
+    and are written per frame as an animated mesh."""
+
+    mode: Literal["shell"]
+    surface: Surface
+    spacing: float | None = Field(
+        None, gt=0, description="Particle spacing h on the surface and between layers [m]; default half the grid "
+        "cell size.")
+    layers: int = Field(1, ge=1, le=64, description="Number of particle layers: 1 is a cloth on the surface; "
+                        "N > 1 fills the shell between the surface and depth N h (layer k at depth (k + 1/2) h) [-].")
+    horizon: float = Field(
+        2.0, gt=1.0, le=4.0, description="Peridynamic horizon delta as a multiple of the spacing h [-].")
+    edge: float | None = Field(
+        None, gt=0, description="Edge length of the triangles of a built-in surface (sheet, box, sphere, ...) "
+        "written as the animated mesh [m]; default the spacing. Mesh files keep their own triangles.")
+
+
+class VoronoiGeometry(Strict):
+    """Voronoi mode (paper section 7): seeds inside a convex shape, Voronoi cells clipped to it; each cell's
+    centroid is a material point with the cell's volume, and bonds join cells that share a face, so broken
+    bonds follow cell faces. The cell polyhedra are written per frame, moving with their points."""
+
+    mode: Literal["voronoi"]
+    shape: Shape
+    spacing: float | None = Field(
+        None, gt=0, description="Seed spacing [m]: one seed per cell of a jittered lattice (cells of about "
+        "spacing^3). Default half the grid cell size when `count` is not given either.")
+    count: int | None = Field(
+        None, ge=2, description="Number of uniformly random seeds instead of a spacing (more varied cell sizes) [-].")
+    resolution: int = Field(
+        48, ge=8, le=512, description="Curved shapes (sphere, cylinder, capsule) are replaced by an inscribed "
+        "polytope with about this many facets around a circle [-].")
+
+    @model_validator(mode="after")
+    def _one(self):
+        if self.spacing is not None and self.count is not None:
+            raise ValueError("give at most one of spacing (m) and count")
+        return self
+
+
+Geometry = Annotated[Union[CloudGeometry, ShellGeometry, VoronoiGeometry], Field(discriminator="mode")]
 
 
 # ---------------------------------------------------------------- materials
@@ -191,10 +257,19 @@ class Fracture(Strict):
 
 
 class Pin(Strict):
-    """Particles inside `region` are held: they move with `velocity` and ignore forces."""
+    """Held particles (a clamp, a clothes peg): they move with `velocity` and ignore forces. Give a `region`, or
+    for shell bodies `vertices` of the surface mesh (the particles within one spacing of them are held)."""
 
-    region: Shape
+    region: Shape | None = Field(None, description="Particles inside this shape are held.")
+    vertices: list[int] | None = Field(
+        None, min_length=1, description="Shell bodies: indices (0-based) of surface-mesh vertices to hold.")
     velocity: Vec3 = Field((0.0, 0.0, 0.0), description="Prescribed velocity of the pinned particles [m/s].")
+
+    @model_validator(mode="after")
+    def _one(self):
+        if (self.region is None) == (self.vertices is None):
+            raise ValueError("give exactly one of region (a shape) and vertices (surface-mesh vertex indices)")
+        return self
 
 
 class Body(Strict):
@@ -208,6 +283,19 @@ class Body(Strict):
     pins: list[Pin] = Field(default_factory=list, description="Regions of held particles.")
     fracture: Fracture | None = Field(
         None, description="Fracture thresholds; absent: bonds never break (no damage arrays or fracture pass).")
+
+    @model_validator(mode="after")
+    def _viscoelastic_cloud(self):
+        if self.material.model == "viscoelastic" and self.geometry.mode != "cloud":
+            raise ValueError("viscoelastic bodies rebuild their bonds as they flow, so no mesh can ride along: use "
+                             "geometry.mode: cloud")
+        return self
+
+    @model_validator(mode="after")
+    def _vertex_pins(self):
+        if self.geometry.mode != "shell" and any(p.vertices is not None for p in self.pins):
+            raise ValueError("pins by vertices need a shell body (geometry.mode: shell); use a pin region here")
+        return self
 
     @model_validator(mode="after")
     def _fracture_solid(self):
@@ -289,6 +377,14 @@ class Simulation(Strict):
     seed: int = Field(0, ge=0, description="Seed of the random particle sampling [-].")
 
 
+class Wind(Strict):
+    """A uniform wind: linear drag pulling material towards the wind velocity, a = drag (velocity - v)."""
+
+    velocity: Vec3 = Field(description="Wind velocity [m/s].")
+    drag: float = Field(gt=0, description="Drag rate: 1 / the time the wind takes to bring light material to "
+                                          "its speed [1/s].")
+
+
 class Domain(Strict):
     min: Vec3 = Field(description="Lower corner of the simulation box [m].")
     max: Vec3 = Field(description="Upper corner of the simulation box [m].")
@@ -322,6 +418,8 @@ FieldName = Literal["particle_v", "particle_speed", "particle_C", "particle_forc
 class Output(Strict):
     hdf5: bool = Field(True, description="Write one HDF5 file (run.h5) with every frame.")
     vtk: bool = Field(True, description="Write a VTU file per frame and a .pvd index for ParaView.")
+    meshes: bool = Field(True, description="Shell and Voronoi bodies: write their moving surface or cell "
+                                           "polyhedra as one PLY file per frame (meshes/<body>_NNNNN.ply).")
     fields: list[FieldName] = Field(
         default_factory=lambda: ["particle_v", "particle_speed"],
         description="Per-frame fields besides particle_x (always written).",
@@ -339,6 +437,7 @@ class Scene(Strict):
     gravity: Vec3 = Field((0.0, -9.81, 0.0), description="Gravitational acceleration [m/s^2].")
     bodies: list[Body] = Field(min_length=1, description="Deformable bodies.")
     colliders: list[Collider] = Field(default_factory=list, description="Kinematic level-set colliders.")
+    wind: Wind | None = Field(None, description="Uniform wind acting on all material on the grid; absent: none.")
     output: Output = Field(default_factory=Output)
 
     @model_validator(mode="after")

@@ -1,0 +1,749 @@
+"""Shell geometry (paper section 7): material points on a surface and in layers under it.
+
+Primitive surfaces (:func:`primitive_surface`)
+    Built-in shapes triangulated with edges about ``edge`` long, outward-oriented and
+    validated like a mesh file: the sheet is a regular grid (open), the box a regular grid on
+    each face, the sphere, cylinder and capsule are surfaces of revolution: rings of about
+    ``2 pi rho / edge`` vertices spaced ``edge`` along the profile, adjacent rings zipped
+    together by angle (a single vertex at the poles / cap centres).
+
+Sampling (:func:`shell_particles`)
+    Layer 0 is a blue-noise set on the surface: uniform area-weighted candidates (about
+    ``CANDIDATES_PER_POINT`` per wanted point) are accepted in random order when no accepted
+    point lies closer than a radius ``r`` (dart throwing on a hash grid, Numba). The accepted
+    count falls like 1 / r^2, so ``r`` is re-tuned from the count (same candidates every pass)
+    until it is within ``COUNT_TOLERANCE`` of area / h^2; ``r`` never drops below
+    ``MIN_SEPARATION * h``.
+
+    Layer k is the same samples at depth k h: each sample keeps its triangle and barycentric
+    coordinates on the surface offset by moving every vertex v by ``-k h d_v``. Where the
+    face normals at a vertex differ (a crease or corner), ``d_v`` moves every adjacent face
+    plane inwards by one unit (least squares, angle-weighted; e.g. (1, 1, 1) at a box
+    corner); its remaining, tangential freedom is the smoothest field over the surface
+    (harmonic, cotangent weights). On smooth parts d_v is about the vertex normal; on a box
+    face it is (1, 2y/b, 2z/c): each layer is the face uniformly shrunk to the offset box, at
+    depth exactly k h, rather than folding near the edges (which interpolating the mitre
+    only across the triangles at the crease does once k h exceeds the triangle size). A
+    sample's ``normal`` is the barycentric mean of the angle-weighted vertex normals,
+    normalised. Each point of layer k stands for ``A_k h / n0``, A_k the area of the offset
+    surface (triangle areas projected on the original normals): a layer-0 point stands for
+    the slab [-h/2, h/2] around the surface, so the total approximates the shell between the
+    surface offset by h/2 outwards and by (layers - 1/2) h inwards (exact for a box, up to
+    the midpoint rule), and a flat sheet gets exactly area * layers * h. An open surface gets
+    its layers on the side opposite its normals.
+
+    Checks (InputError): layers >= 1; at least 4 points; at most ``MAX_POINTS``; with
+    layers > 1 the body must be thick enough: along the inward normal of each sample the
+    surface must be at least ``2 (layers - 1) h + MIN_INNER_GAP h`` away (the deepest layers
+    from opposite sides stay h/2 apart), and the path of each sample's layers must not leave
+    the body (which, on a closed surface, is the inside test of every inner point).
+
+    Option ``first_depth`` (default 0, as above) moves every layer deeper by first_depth h;
+    with 0.5 layer k sits at (k + 1/2) h and the layers' slabs fill [0, layers h] inside the
+    surface (A_k is then taken at the slab centre, so the total approximates the shell's own
+    volume instead of one reaching h/2 outside).
+
+Embedding (:func:`embed_points`)
+    Mesh vertices are tied to their k nearest particles with Wendland C2 weights, so that the
+    animated surface can follow the particles' motion and deformation.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, prange
+from scipy.spatial import cKDTree
+
+from pdmpm_cli.errors import InputError
+from pdmpm_cli.geometry.mesh import (
+    SurfaceMesh,
+    _fmt_point,
+    _hierarchy,
+    _weld,
+    inside_mesh,
+    is_closed,
+    validate_surface,
+)
+from pdmpm_cli.geometry.shapes import _positive, _rotation, _size3, _vec3
+
+__all__ = ["PRIMITIVES", "ShellSample", "primitive_surface", "shell_particles", "thin_crowded", "embed_points"]
+
+PRIMITIVES = ("sheet", "box", "sphere", "cylinder", "capsule")
+#: refuse shells with more material points than this
+MAX_POINTS = 5_000_000
+#: refuse primitive surfaces with more triangles than this
+MAX_TRIANGLES = 20_000_000
+#: minimum distance between layer-0 points, in units of h
+MIN_SEPARATION = 0.6
+#: uniform candidates drawn per wanted layer-0 point (more: closer to a maximal packing)
+CANDIDATES_PER_POINT = 10
+#: accepted relative deviation of the layer-0 count from area / h^2 (then tuning stops)
+COUNT_TOLERANCE = 0.02
+#: eigen-directions of the normal tensor weaker than this fraction are treated as smooth
+CREASE_RATIO = 0.15
+#: cap on the length of a vertex offset direction (a 39 degree wedge); sharper edges are under-offset
+MAX_OFFSET = 3.0
+#: conjugate-gradient iterations for the smooth offset field (one mesh ring of reach each)
+OFFSET_CG_ITERATIONS = 1000
+#: the deepest layers from opposite sides of the body must stay this far apart [h]
+MIN_INNER_GAP = 0.5
+_CHUNK = 1 << 20
+
+
+# ----------------------------------------------------------------------------------------
+# primitive surfaces
+# ----------------------------------------------------------------------------------------
+def _grid_face(o, U, W, nu: int, nw: int) -> tuple[np.ndarray, np.ndarray]:
+    """Regular grid o + i/nu U + j/nw W, triangulated counter-clockwise about U x W."""
+    i, j = np.meshgrid(np.arange(nu + 1), np.arange(nw + 1), indexing="ij")
+    V = o + (i.reshape(-1, 1) / nu) * U + (j.reshape(-1, 1) / nw) * W
+    idx = lambda a, b: a * (nw + 1) + b  # noqa: E731
+    a, b = np.meshgrid(np.arange(nu), np.arange(nw), indexing="ij")
+    a, b = a.ravel(), b.ravel()
+    p00, p10, p11, p01 = idx(a, b), idx(a + 1, b), idx(a + 1, b + 1), idx(a, b + 1)
+    T = np.concatenate([np.stack([p00, p10, p11], 1), np.stack([p00, p11, p01], 1)])
+    return V, T.astype(np.int64)
+
+
+def _nseg(length: float, edge: float) -> int:
+    return max(1, int(round(length / edge)))
+
+
+def _box_local(size, edge) -> tuple[np.ndarray, np.ndarray]:
+    """Box centred at the origin: a grid on each face, shared edge vertices welded."""
+    a, b, c = size
+    na, nb, nc = _nseg(a, edge), _nseg(b, edge), _nseg(c, edge)
+    X, Y, Z = np.array([a, 0.0, 0.0]), np.array([0.0, b, 0.0]), np.array([0.0, 0.0, c])
+    lo = -0.5 * np.asarray(size)
+    faces = [  # (origin, U, W, nu, nw) with U x W = outward normal
+        (lo + X, Y, Z, nb, nc), (lo, Z, Y, nc, nb),
+        (lo + Y, Z, X, nc, na), (lo, X, Z, na, nc),
+        (lo + Z, X, Y, na, nb), (lo, Y, X, nb, na),
+    ]
+    Vs, Ts, off = [], [], 0
+    for o, U, W, nu, nw in faces:
+        V, T = _grid_face(o, U, W, nu, nw)
+        Vs.append(V)
+        Ts.append(T + off)
+        off += V.shape[0]
+    V, T = np.concatenate(Vs), np.concatenate(Ts)
+    V, T, _ = _weld(V, T, 1e-9 * float(np.linalg.norm(size)))
+    used, inv = np.unique(T, return_inverse=True)
+    return V[used], inv.reshape(T.shape).astype(np.int64)
+
+
+def _profile(kind: str, edge: float, radius: float, height: float, length: float) -> np.ndarray:
+    """(rho, z) points from the bottom pole to the top pole of a surface of revolution about z."""
+    pts: list[np.ndarray] = []
+
+    def arc(zc, phi0, phi1):
+        n = _nseg(abs(phi1 - phi0) * radius, edge)
+        phi = np.linspace(phi0, phi1, n + 1)
+        pts.append(np.stack([radius * np.cos(phi), zc + radius * np.sin(phi)], 1))
+
+    def line(p0, p1):
+        n = _nseg(float(np.hypot(p1[0] - p0[0], p1[1] - p0[1])), edge)
+        s = np.linspace(0.0, 1.0, n + 1)[:, None]
+        pts.append((1.0 - s) * np.asarray(p0) + s * np.asarray(p1))
+
+    if kind == "sphere":
+        arc(0.0, -0.5 * math.pi, 0.5 * math.pi)
+    elif kind == "cylinder":
+        z = 0.5 * height
+        line((0.0, -z), (radius, -z))
+        line((radius, -z), (radius, z))
+        line((radius, z), (0.0, z))
+    else:  # capsule
+        z = 0.5 * length
+        arc(-z, -0.5 * math.pi, 0.0)
+        if length > 0.0:
+            line((radius, -z), (radius, z))
+        arc(z, 0.0, 0.5 * math.pi)
+    P = np.concatenate(pts)
+    keep = np.ones(P.shape[0], bool)  # drop the repeated joints between pieces
+    keep[1:] = np.any(np.abs(np.diff(P, axis=0)) > 1e-12 * radius, axis=1)
+    P = P[keep]
+    P[0, 0] = P[-1, 0] = 0.0  # exact poles
+    return P
+
+
+def _revolve(profile: np.ndarray, edge: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rings of vertices about z (outward for a profile going up), adjacent rings zipped by angle."""
+    V: list[np.ndarray] = []
+    rings: list[tuple[int, int, float]] = []  # (first vertex, count (1 = pole), angular offset)
+    off = 0
+    for j, (rho, z) in enumerate(profile):
+        if rho <= 0.0:
+            m, phase = 1, 0.0
+            V.append(np.array([[0.0, 0.0, z]]))
+        else:
+            m = max(3, int(round(2.0 * math.pi * rho / edge)))
+            phase = (j % 2) * math.pi / m  # stagger neighbouring rings
+            th = phase + 2.0 * math.pi * np.arange(m) / m
+            V.append(np.stack([rho * np.cos(th), rho * np.sin(th), np.full(m, z)], 1))
+        rings.append((off, m, phase))
+        off += m
+    T: list[tuple[int, int, int]] = []
+    for (a0, ma, pa), (b0, mb, pb) in zip(rings[:-1], rings[1:]):
+        na = 0 if ma == 1 else ma  # steps along each ring (none around a pole)
+        nb = 0 if mb == 1 else mb
+        i = j = 0
+        while i < na or j < nb:
+            next_a = pa + 2.0 * math.pi * (i + 1) / ma
+            next_b = pb + 2.0 * math.pi * (j + 1) / mb
+            A, B = a0 + i % ma, b0 + j % mb
+            if j >= nb or (i < na and next_a < next_b):
+                T.append((A, a0 + (i + 1) % ma, B))
+                i += 1
+            else:
+                T.append((A, b0 + (j + 1) % mb, B))
+                j += 1
+    return np.concatenate(V), np.asarray(T, dtype=np.int64)
+
+
+def primitive_surface(kind: str, *, center, R, edge: float, size=None, radius=None, height=None,
+                      length=None) -> SurfaceMesh:
+    """Triangulated surface of a built-in primitive with edges about `edge` long, outward-oriented.
+
+    kind: 'sheet' (OPEN flat rectangle, size=(a, b) full lengths along local x and y, normal =
+    local +z, centred at center), 'box' (size=(a, b, c)), 'sphere' (radius), 'cylinder'
+    (radius, height along local z, capped), 'capsule' (radius, length = distance between cap
+    centres along local z). R is a 3x3 rotation matrix (local axes = columns), applied about
+    the centre. Closed ones are validated like a mesh file; the sheet has ``closed=False``.
+    """
+    if kind not in PRIMITIVES:
+        raise InputError(f"unknown surface primitive {kind!r}; choose one of {', '.join(PRIMITIVES)}")
+    c = _vec3(center, "center")
+    M = _rotation(R)
+    e = _positive(edge, "edge")
+    what = f"{kind} surface"
+
+    def need(value, name):
+        if value is None:
+            raise InputError(f"{what}: {name} is required for a {kind}")
+        return value
+
+    if kind == "sheet":
+        s = need(size, "size=(a, b)")
+        try:
+            ab = np.asarray(s, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            ab = np.zeros(0)
+        if ab.shape != (2,) or not np.all(np.isfinite(ab)) or np.any(ab <= 0.0):
+            raise InputError(f"{what}: size must be 2 positive lengths (a, b) in metres, got {s!r}")
+        area = float(ab[0] * ab[1])
+    elif kind == "box":
+        abc = _size3(need(size, "size=(a, b, c)"))
+        area = 2.0 * float(abc[0] * abc[1] + abc[1] * abc[2] + abc[0] * abc[2])
+    else:
+        r = _positive(need(radius, "radius"), "radius")
+        hgt = _positive(need(height, "height"), "height") if kind == "cylinder" else 0.0
+        lng = _positive(need(length, "length"), "length", allow_zero=True) if kind == "capsule" else 0.0
+        area = 4.0 * math.pi * r * r + 2.0 * math.pi * r * (hgt + lng) + (2.0 * math.pi * r * r if hgt else 0.0)
+    n_tri = 2.3 * area / (e * e)  # ~ 2 triangles per edge^2 (rounded up for the ring zippers)
+    if n_tri > MAX_TRIANGLES:
+        raise InputError(
+            f"{what}: edge {e:g} m would give about {n_tri:,.0f} triangles (limit {MAX_TRIANGLES:,}); use an "
+            f"edge of at least {math.sqrt(2.3 * area / MAX_TRIANGLES):.3g} m"
+        )
+
+    if kind == "sheet":
+        V, T = _grid_face(np.array([-0.5 * ab[0], -0.5 * ab[1], 0.0]), np.array([ab[0], 0.0, 0.0]),
+                          np.array([0.0, ab[1], 0.0]), _nseg(ab[0], e), _nseg(ab[1], e))
+    elif kind == "box":
+        V, T = _box_local(abc, e)
+    else:
+        V, T = _revolve(_profile(kind, e, r, hgt, lng), e)
+    V = c + V @ M.T
+    V, T, repairs = validate_surface(V, T, what, allow_open=(kind == "sheet"))
+    return SurfaceMesh(V, T, "", repairs, closed=is_closed(T))
+
+
+# ----------------------------------------------------------------------------------------
+# vertex normals and offset directions
+# ----------------------------------------------------------------------------------------
+def _vertex_frames(V: np.ndarray, T: np.ndarray, offsets: bool):
+    """(unit vertex normals, vertex offset directions or None, unit triangle normals).
+
+    Normals are angle-weighted (independent of how a flat region is triangulated). Offset
+    directions: see :func:`_offset_directions`.
+    """
+    nv = V.shape[0]
+    P = V[T]  # (nt, 3, 3)
+    fn = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+    fl = np.linalg.norm(fn, axis=1)
+    fn = fn / np.where(fl > 0.0, fl, 1.0)[:, None]
+    ang = np.empty(T.shape)
+    cot = np.zeros(T.shape)  # cotangent of each corner's angle
+    for q in range(3):
+        a = P[:, (q + 1) % 3] - P[:, q]
+        b = P[:, (q + 2) % 3] - P[:, q]
+        dot = np.einsum("ij,ij->i", a, b)
+        ang[:, q] = np.arctan2(fl, dot)
+        np.divide(dot, fl, out=cot[:, q], where=fl > 0.0)
+    ang[fl == 0.0] = 0.0
+    vid = T.reshape(-1)
+    wn = (ang[:, :, None] * fn[:, None, :]).reshape(-1, 3)  # angle-weighted normal per corner
+    b = np.stack([np.bincount(vid, wn[:, d], nv) for d in range(3)], 1)
+    bl = np.linalg.norm(b, axis=1)
+    n = b / np.where(bl > 0.0, bl, 1.0)[:, None]
+    if not offsets:
+        return n, None, fn
+    outer = (ang[:, :, None, None] * (fn[:, :, None] * fn[:, None, :])[:, None]).reshape(-1, 9)
+    Mt = np.stack([np.bincount(vid, outer[:, d], nv) for d in range(9)], 1).reshape(nv, 3, 3)
+    return n, _offset_directions(T, Mt, b, cot), fn
+
+
+def _offset_directions(T: np.ndarray, Mt: np.ndarray, b: np.ndarray, cot: np.ndarray) -> np.ndarray:
+    """Per-vertex displacement per unit depth (nv, 3): the face planes move in by one unit.
+
+    At each vertex, ``Mt = sum angle * n n^T`` and ``b = sum angle * n`` over the adjacent
+    faces. Along the eigen-directions of Mt with a strong eigenvalue (the face normals there
+    differ: a crease or corner, or the normal itself) d solves the least-squares system
+    n_f . d = 1 (e.g. (1, 1, 1) at a box corner). The remaining (tangential) freedom is
+    filled by the smoothest field: minimum of the Dirichlet energy sum over mesh edges
+    w_ij |d_i - d_j|^2 (cotangent weights, conjugate gradients). On a box face this gives
+    d = (1, 2y/b, 2z/c): every layer is a uniformly shrunk copy of the face, whereas
+    interpolating the mitre only across the triangles at the crease would fold them once the
+    depth exceeds the triangle size. On smooth surfaces it stays (close to) the vertex normal.
+    """
+    from scipy import sparse
+    from scipy.sparse.linalg import cg
+
+    nv = Mt.shape[0]
+    lam, E = np.linalg.eigh(Mt)  # ascending eigenvalues, eigenvectors in the columns
+    keep = lam >= CREASE_RATIO * np.maximum(lam[:, 2:3], 1e-300)
+    coef = np.where(keep, np.einsum("vdk,vd->vk", E, b) / np.where(keep, lam, 1.0), 0.0)
+    d0 = np.einsum("vdk,vk->vd", E, coef)
+    vi, ki = np.nonzero(~keep)
+    nz = vi.shape[0]
+    d = d0
+    if nz:
+        Bm = sparse.csr_matrix(
+            (E[vi, :, ki].ravel(), ((3 * vi[:, None] + np.arange(3)).ravel(), np.repeat(np.arange(nz), 3))),
+            shape=(3 * nv, nz),
+        )
+        # intrinsic cotangent weights (isotropic; a linear field on an unfolded face is harmonic),
+        # clipped at 0 for obtuse pairs to keep the system positive definite
+        i = T[:, [1, 2, 0]].reshape(-1)
+        j = T[:, [2, 0, 1]].reshape(-1)
+        adj = sparse.coo_matrix((0.5 * cot.reshape(-1), (i, j)), shape=(nv, nv)).tocsr()
+        adj = adj + adj.T
+        adj.data = np.maximum(adj.data, 0.0)
+        lap = sparse.diags(np.asarray(adj.sum(axis=1)).ravel()) - adj
+        LB = sparse.kron(lap, sparse.identity(3), format="csr") @ Bm
+        K = (Bm.T @ LB).tocsr() + sparse.identity(nz) * 1e-8  # tiny: pins constant tangential fields (a flat sheet)
+        rhs = -(LB.T @ d0.ravel())
+        if np.any(rhs != 0.0):
+            z, _ = cg(K, rhs, rtol=1e-6, maxiter=OFFSET_CG_ITERATIONS, M=sparse.diags(1.0 / K.diagonal()))
+            d = d0 + (Bm @ z).reshape(nv, 3)
+    dl = np.linalg.norm(d, axis=1)
+    return d * np.minimum(1.0, MAX_OFFSET / np.where(dl > 0.0, dl, 1.0))[:, None]
+
+
+def _offset_area(V: np.ndarray, T: np.ndarray, fn: np.ndarray) -> float:
+    """Area of the surface V (same triangles), each triangle projected on its original normal fn."""
+    P = V[T]
+    return 0.5 * float(np.einsum("ij,ij->", np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), fn))
+
+
+# ----------------------------------------------------------------------------------------
+# blue-noise sampling of the surface (dart throwing on a hash grid)
+# ----------------------------------------------------------------------------------------
+_KEY_BITS = 21  # cell coordinates are packed into one int64 (wrapped: a clash only costs a distance test)
+_KEY_MASK = (1 << _KEY_BITS) - 1
+
+
+@njit(cache=True, inline="always")
+def _slot(keys, key, mask):
+    """Open-addressing slot of a packed cell key (splitmix64 hash, linear probing); keys < 0 are empty."""
+    z = np.uint64(key) + np.uint64(0x9E3779B97F4A7C15)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    z = z ^ (z >> np.uint64(31))
+    s = np.int64(z & np.uint64(mask))
+    while keys[s] >= 0 and keys[s] != key:
+        s = (s + 1) & mask
+    return s
+
+
+@njit(cache=True, inline="always")
+def _pack(ix, iy, iz):
+    return ((ix & _KEY_MASK) << (2 * _KEY_BITS)) | ((iy & _KEY_MASK) << _KEY_BITS) | (iz & _KEY_MASK)
+
+
+_NEIGHBOURS = np.array(
+    sorted(((a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)), key=lambda o: sum(map(abs, o))),
+    dtype=np.int64,
+)
+
+
+@njit(cache=True)
+def _dart_chunk(V, T, tri, u, v, r, lo, keys, head, nxt, pos, acc_tri, acc_bary, count):
+    """Accept each candidate with no accepted point closer than r; returns the count (-1: full)."""
+    cap = pos.shape[0]
+    mask = keys.shape[0] - 1
+    inv = 1.0 / r
+    r2 = r * r
+    for c in range(tri.shape[0]):
+        t = tri[c]
+        b1 = u[c]
+        b2 = v[c]
+        if b1 + b2 > 1.0:
+            b1 = 1.0 - b1
+            b2 = 1.0 - b2
+        b0 = 1.0 - b1 - b2
+        i0, i1, i2 = T[t, 0], T[t, 1], T[t, 2]
+        px = b0 * V[i0, 0] + b1 * V[i1, 0] + b2 * V[i2, 0]
+        py = b0 * V[i0, 1] + b1 * V[i1, 1] + b2 * V[i2, 1]
+        pz = b0 * V[i0, 2] + b1 * V[i1, 2] + b2 * V[i2, 2]
+        ix = np.int64((px - lo[0]) * inv)
+        iy = np.int64((py - lo[1]) * inv)
+        iz = np.int64((pz - lo[2]) * inv)
+        ok = True
+        for o in range(27):  # own cell first: most candidates are rejected there, cheaply
+            s = _slot(keys, _pack(ix + _NEIGHBOURS[o, 0], iy + _NEIGHBOURS[o, 1], iz + _NEIGHBOURS[o, 2]), mask)
+            k = head[s] if keys[s] >= 0 else -1
+            while k >= 0:
+                ex = pos[k, 0] - px
+                ey = pos[k, 1] - py
+                ez = pos[k, 2] - pz
+                if ex * ex + ey * ey + ez * ez < r2:
+                    ok = False
+                    break
+                k = nxt[k]
+            if not ok:
+                break
+        if not ok:
+            continue
+        if count >= cap:
+            return -1
+        key = _pack(ix, iy, iz)
+        s = _slot(keys, key, mask)
+        if keys[s] < 0:
+            keys[s] = key
+            head[s] = -1
+        pos[count, 0] = px
+        pos[count, 1] = py
+        pos[count, 2] = pz
+        acc_tri[count] = t
+        acc_bary[count, 0] = b0
+        acc_bary[count, 1] = b1
+        acc_bary[count, 2] = b2
+        nxt[count] = head[s]
+        head[s] = count
+        count += 1
+    return count
+
+
+def _dart_throw(V, T, cum, n_cand, r, cap, seed):
+    """One dart-throwing pass with radius r over the candidates of `seed`; None if over `cap`."""
+    rng = np.random.default_rng(seed)
+    size = 1 << max(4, int(math.ceil(math.log2(2 * cap + 1))))
+    keys = np.full(size, -1, np.int64)
+    head = np.empty(size, np.int32)
+    nxt = np.empty(cap, np.int32)
+    pos = np.empty((cap, 3))
+    acc_tri = np.empty(cap, np.int64)
+    acc_bary = np.empty((cap, 3))
+    lo = V.min(axis=0) - 2.0 * r
+    total = cum[-1]
+    count = 0
+    for start in range(0, n_cand, _CHUNK):
+        k = min(_CHUNK, n_cand - start)
+        tri = np.minimum(np.searchsorted(cum, rng.random(k) * total, side="right"), T.shape[0] - 1)
+        u = rng.random(k)
+        v = rng.random(k)
+        count = _dart_chunk(V, T, tri, u, v, r, lo, keys, head, nxt, pos, acc_tri, acc_bary, count)
+        if count < 0:
+            return None
+    return pos[:count], acc_tri[:count], acc_bary[:count]
+
+
+def _blue_noise(V, T, area, n_target, h, rng):
+    """Layer-0 samples (points, triangle, barycentric) with about n_target points, spacing >= 0.6 h."""
+    cum = np.cumsum(area)
+    n_cand = int(CANDIDATES_PER_POINT * n_target) + 64
+    cap = int(1.5 * n_target) + 16
+    seed = int(rng.integers(0, 2**63 - 1))
+    r_min = MIN_SEPARATION * h
+    r = 0.748 * h  # gives about area / h^2 points at this many candidates (measured on a plane and a sphere)
+    best = None
+    for _ in range(10):
+        res = _dart_throw(V, T, cum, n_cand, r, cap, seed)
+        n = cap + 1 if res is None else res[0].shape[0]
+        if res is not None and (best is None or abs(n - n_target) < abs(best[0].shape[0] - n_target)):
+            best = res
+        if abs(n - n_target) <= COUNT_TOLERANCE * n_target or (r <= r_min and n < n_target):
+            break
+        r = max(r_min, r * math.sqrt(max(n, 1) / n_target))
+    if best is None:  # pragma: no cover - the first passes always fit
+        best = _dart_throw(V, T, cum, n_cand, 2.0 * h, 10 * cap, seed)
+    pts, tri, bary = best
+    order = np.argsort(tri, kind="stable")  # memory locality: triangles are usually spatially coherent
+    return pts[order], tri[order], bary[order]
+
+
+# ----------------------------------------------------------------------------------------
+# local thickness: first hit along the inward normal (rays against the mesh's BVH)
+# ----------------------------------------------------------------------------------------
+@njit(parallel=True, cache=True)
+def _first_hits(orig, dirs, V, Ts, node_lo, node_hi, start, end, left, pad, tmin):
+    """Distance along each ray to the first triangle beyond tmin (inf if none)."""
+    n = orig.shape[0]
+    out = np.empty(n)
+    for i in prange(n):
+        ox, oy, oz = orig[i, 0], orig[i, 1], orig[i, 2]
+        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        ix = 1.0 / dx if abs(dx) > 1e-300 else math.copysign(1e300, dx)
+        iy = 1.0 / dy if abs(dy) > 1e-300 else math.copysign(1e300, dy)
+        iz = 1.0 / dz if abs(dz) > 1e-300 else math.copysign(1e300, dz)
+        best = np.inf
+        stack = np.empty(128, np.int64)
+        stack[0] = 0
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            k = stack[sp]
+            t0 = (node_lo[k, 0] - pad - ox) * ix
+            t1 = (node_hi[k, 0] + pad - ox) * ix
+            tn, tf = min(t0, t1), max(t0, t1)
+            t0 = (node_lo[k, 1] - pad - oy) * iy
+            t1 = (node_hi[k, 1] + pad - oy) * iy
+            tn, tf = max(tn, min(t0, t1)), min(tf, max(t0, t1))
+            t0 = (node_lo[k, 2] - pad - oz) * iz
+            t1 = (node_hi[k, 2] + pad - oz) * iz
+            tn, tf = max(tn, min(t0, t1)), min(tf, max(t0, t1))
+            if tf < max(tn, 0.0) or tn > best:
+                continue
+            if left[k] >= 0:
+                stack[sp] = left[k]
+                stack[sp + 1] = left[k] + 1
+                sp += 2
+                continue
+            for t in range(start[k], end[k]):
+                a, b, c = Ts[t, 0], Ts[t, 1], Ts[t, 2]
+                e1x, e1y, e1z = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
+                e2x, e2y, e2z = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
+                px = dy * e2z - dz * e2y
+                py = dz * e2x - dx * e2z
+                pz = dx * e2y - dy * e2x
+                det = e1x * px + e1y * py + e1z * pz
+                if det == 0.0:
+                    continue
+                idet = 1.0 / det
+                sx, sy, sz = ox - V[a, 0], oy - V[a, 1], oz - V[a, 2]
+                uu = (sx * px + sy * py + sz * pz) * idet
+                if uu < -1e-12 or uu > 1.0 + 1e-12:
+                    continue
+                qx = sy * e1z - sz * e1y
+                qy = sz * e1x - sx * e1z
+                qz = sx * e1y - sy * e1x
+                vv = (dx * qx + dy * qy + dz * qz) * idet
+                if vv < -1e-12 or uu + vv > 1.0 + 1e-12:
+                    continue
+                tt = (e2x * qx + e2y * qy + e2z * qz) * idet
+                if tt > tmin and tt < best:
+                    best = tt
+        out[i] = best
+    return out
+
+
+def _too_thick(what, depths, h, point, t) -> InputError:
+    layers = depths.shape[0]
+    s = depths[0] / h  # depth of the first layer [h]
+    L_max = max(1, int(math.floor((t / h - MIN_INNER_GAP) / 2.0 - s + 1.0)))
+    h_max = t / (2.0 * (layers - 1 + s) + MIN_INNER_GAP)
+    return InputError(
+        f"{what}: the shell ({layers} layers x spacing h = {h:g} m, layers*h = {layers * h:.4g} m thick) is "
+        f"thicker than the body near {_fmt_point(point)}, where the body is only about {t:.3g} m thick: the "
+        f"layers from opposite sides would overlap. Use fewer layers (at most {L_max} there) or a smaller "
+        f"spacing h (at most {h_max:.3g} m with {layers} layers)"
+    )
+
+
+def _check_thickness(mesh, pts0, tri, nrm, dirs, fn, areas, depths, h, what) -> None:
+    """Raise if the layers would overlap across the body or leave it (see the module doc).
+
+    Two ray casts per sample against the mesh: along the inward normal the surface must be
+    ``2 * deepest + MIN_INNER_GAP h`` away; along the sample's offset path the surface must
+    lie beyond the deepest layer point. The second is the inside test of the inner points:
+    the path starts into the body (it moves every adjacent face plane inwards) and does not
+    cross the surface, so all its points are inside; the few samples whose path starts
+    otherwise (degenerate spots) get the winding-number test instead.
+    """
+    V = mesh.vertices
+    (Ts, lo, hi, start, end, left, _, _), pad = _hierarchy(mesh)
+    tmin = 1e-6 * h
+    thick = _first_hits(pts0, -nrm, V, Ts, lo, hi, start, end, left, pad, tmin)
+    i = int(np.argmin(thick))
+    deepest = float(depths[-1])
+    if thick[i] < 2.0 * deepest + MIN_INNER_GAP * h:
+        raise _too_thick(what, depths, h, pts0[i], float(thick[i]))
+    bad = np.flatnonzero(areas <= 0.0)
+    if bad.size:  # the offset surface turned inside out: deeper than the body's half thickness
+        raise _too_thick(what, depths, h, pts0[i], float(min(thick[i], 2.0 * depths[bad[0]] - h)))
+    dl = np.linalg.norm(dirs, axis=1)
+    unit = dirs / np.where(dl > 0.0, dl, 1.0)[:, None]
+    along = _first_hits(pts0, -unit, V, Ts, lo, hi, start, end, left, pad, tmin)
+    out = along <= deepest * dl * (1.0 + 1e-9)
+    if mesh.closed:
+        odd = np.einsum("ij,ij->i", unit, fn[tri]) <= 0.0
+        out &= ~odd
+        inner = depths[depths > 0.0]
+        if odd.any():
+            pts = np.concatenate([pts0[odd] - d * dirs[odd] for d in inner])
+            outside = ~inside_mesh(mesh, pts).reshape(inner.shape[0], -1).all(axis=0)
+            out[np.flatnonzero(odd)[outside]] = True
+    if out.any():
+        j = int(np.flatnonzero(out)[np.argmin(thick[out])])
+        raise _too_thick(what, depths, h, pts0[j], float(min(thick[j], along[j])))
+
+
+# ----------------------------------------------------------------------------------------
+# shell sampling
+# ----------------------------------------------------------------------------------------
+@dataclass
+class ShellSample:
+    """Material points of a shell body, layer by layer (layer 0 first, n0 points per layer)."""
+
+    points: np.ndarray  # (n, 3) material points [m]
+    volumes: np.ndarray  # (n,) volume of each point [m^3]
+    layer: np.ndarray  # (n,) int32, 0 = on the surface, k = depth k*h (plus first_depth * h if given)
+    normals: np.ndarray  # (n, 3) outward unit normal of the surface at the point's surface location
+
+
+def shell_particles(mesh: SurfaceMesh, h: float, layers: int, rng: np.random.Generator,
+                    what: str = "shell body", *, first_depth: float = 0.0) -> ShellSample:
+    """Blue-noise points on `mesh` (about one per h^2) repeated in `layers` layers h apart inwards.
+
+    See the module doc for the construction, the volumes and the checks; an open mesh
+    (``mesh.closed`` False) puts its layers on the side opposite its normals.
+    ``first_depth`` (in units of h) shifts every layer deeper: layer k lies at depth
+    (k + first_depth) h. 0 (default) puts layer 0 on the surface; 0.5 centres the layers'
+    slabs in [0, layers h], so that they fill the body's shell exactly (no half slab outside).
+    """
+    try:
+        h = float(h)
+    except (TypeError, ValueError):
+        raise InputError(f"{what}: particle spacing h must be a number, got {h!r}") from None
+    if not (math.isfinite(h) and h > 0.0):
+        raise InputError(f"{what}: particle spacing h must be a positive length in metres, got {h!r}")
+    if isinstance(layers, bool) or not isinstance(layers, (int, np.integer)) or layers < 1:
+        raise InputError(f"{what}: layers must be a whole number >= 1 (1 = a cloth on the surface), got {layers!r}")
+    layers = int(layers)
+    try:
+        first_depth = float(first_depth)
+    except (TypeError, ValueError):
+        first_depth = float("nan")
+    if not (math.isfinite(first_depth) and first_depth >= 0.0):
+        raise InputError(f"{what}: the depth of the first layer must be >= 0 (in units of h), got {first_depth!r}")
+    depths = (np.arange(layers) + first_depth) * h
+    V, T = mesh.vertices, mesh.triangles
+    if T.shape[0] == 0:
+        raise InputError(f"{what}: the surface has no triangles")
+    P = V[T]
+    area = 0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1)
+    A = float(area.sum())
+    n_target = A / (h * h)
+    if n_target * layers > MAX_POINTS:
+        raise InputError(
+            f"{what}: spacing h = {h:g} m on a surface of {A:.4g} m^2 with {layers} layers needs about "
+            f"{n_target * layers:,.0f} material points (limit {MAX_POINTS:,}); use a larger spacing, at least "
+            f"h = {math.sqrt(A * layers / MAX_POINTS):.3g} m, or fewer layers"
+        )
+    too_small = (
+        f"{what}: the surface ({A:.3g} m^2) is too small for the spacing h = {h:g} m: it would get fewer than 4 "
+        f"points per layer; use a spacing of at most {math.sqrt(A / 4.0):.3g} m or a larger surface"
+    )
+    if n_target < 4.0:
+        raise InputError(too_small)
+    pts0, tri, bary = _blue_noise(V, T, area, n_target, h, rng)
+    n0 = pts0.shape[0]
+    if n0 < 4:
+        raise InputError(too_small)
+
+    deep = depths[-1] > 0.0
+    vn, vd, fn = _vertex_frames(V, T, offsets=deep)
+    nrm = np.einsum("ik,ikd->id", bary, vn[T[tri]])
+    nl = np.linalg.norm(nrm, axis=1)
+    nrm /= np.where(nl > 0.0, nl, 1.0)[:, None]
+    areas = np.full(layers, A)
+    pts = pts0
+    if deep:
+        dirs = np.einsum("ik,ikd->id", bary, vd[T[tri]])  # displacement per unit depth of each sample
+        for k in range(layers):
+            if depths[k] > 0.0:
+                areas[k] = _offset_area(V - depths[k] * vd, T, fn)
+        _check_thickness(mesh, pts0, tri, nrm, dirs, fn, areas, depths, h, what)
+        pts = np.concatenate([pts0 - d * dirs for d in depths])
+    if pts.shape[0] > MAX_POINTS:
+        raise InputError(
+            f"{what}: {pts.shape[0]:,} material points (limit {MAX_POINTS:,}); use a larger spacing than "
+            f"h = {h:g} m or fewer layers"
+        )
+    volumes = np.repeat(areas * h / n0, n0)
+    layer = np.repeat(np.arange(layers, dtype=np.int32), n0)
+    return ShellSample(pts, volumes, layer, np.tile(nrm, (layers, 1)))
+
+
+#: inner-layer points closer than this to a point already kept are merged into it [h]
+THIN_SEPARATION = 0.5
+
+
+def thin_crowded(sample: ShellSample, h: float, min_sep: float = THIN_SEPARATION) -> ShellSample:
+    """Merge inner-layer points that crowd: where layers shrink (a box's faces meet inside a thin body) a
+    point closer than min_sep h to one already kept, layer by layer from the surface, is dropped and its
+    volume given to the nearest kept point. Crowded pairs would otherwise set a tiny bond time step and
+    add hundreds of bonds per point; the total volume is unchanged."""
+    r = min_sep * h
+    keep = sample.layer == 0
+    for k in range(1, int(sample.layer.max(initial=0)) + 1):
+        idx = np.flatnonzero(sample.layer == k)
+        if np.any(keep):
+            near = cKDTree(sample.points[keep]).query(sample.points[idx], distance_upper_bound=r)[0]
+            idx = idx[~np.isfinite(near)]
+        ok = np.ones(len(idx), dtype=bool)
+        for i, j in cKDTree(sample.points[idx]).query_pairs(r, output_type="ndarray"):
+            if ok[i] and ok[j]:
+                ok[j] = False
+        keep[idx[ok]] = True
+    if keep.all():
+        return sample
+    volumes = sample.volumes[keep].copy()
+    dropped = np.flatnonzero(~keep)
+    into = cKDTree(sample.points[keep]).query(sample.points[dropped])[1]
+    np.add.at(volumes, into, sample.volumes[dropped])
+    return ShellSample(sample.points[keep], volumes, sample.layer[keep], sample.normals[keep])
+
+
+# ----------------------------------------------------------------------------------------
+# embedding
+# ----------------------------------------------------------------------------------------
+def embed_points(points: np.ndarray, particles: np.ndarray, k: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Each of `points` (m,3) is tied to its k nearest `particles` (n,3) with smooth positive weights summing to 1.
+
+    Wendland C2 weights (1 - q)^4 (1 + 4 q), q = d / (1.5 d_k), d_k the distance to the k-th
+    nearest; returns (idx (m,k) int64, w (m,k) float64); if n < k, k = n. A vertex placed at
+    sum_i w_i (x_i + F_i (X - X_i)) then moves exactly with any affine motion.
+    """
+    X = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    Pp = np.ascontiguousarray(particles, dtype=np.float64).reshape(-1, 3)
+    if Pp.shape[0] == 0:
+        raise ValueError("embed_points needs at least one particle")
+    k = int(min(k, Pp.shape[0]))
+    if k < 1:
+        raise ValueError(f"k must be >= 1, got {k}")
+    if X.shape[0] == 0:
+        return np.zeros((0, k), np.int64), np.zeros((0, k))
+    d, idx = cKDTree(Pp).query(X, k=k)
+    d = np.asarray(d, dtype=np.float64).reshape(X.shape[0], k)
+    idx = np.asarray(idx, dtype=np.int64).reshape(X.shape[0], k)
+    support = 1.5 * d[:, -1:]
+    q = np.divide(d, support, out=np.zeros_like(d), where=support > 0.0)
+    w = (1.0 - q) ** 4 * (1.0 + 4.0 * q)
+    w /= w.sum(axis=1, keepdims=True)
+    return idx, w

@@ -1,0 +1,240 @@
+"""The three geometry modes (paper section 7) behave alike: rest, cantilever sag, cloth, meshes riding along."""
+
+import numpy as np
+import pytest
+
+from tests.conftest import BASE, merge
+from pdmpm_cli.engine.embedding import mesh_positions
+from pdmpm_cli.scene.schema import Scene
+
+RHO = 1000.0
+
+
+def beam_geometry(mode, L, H, h):
+    """A square beam of free length L along +x from x = 0, with a 0.1 m root in x < 0 that the pin holds."""
+    box = {"type": "box", "center": [L / 2 - 0.05, 0, 0], "size": [L + 0.1, H, H]}
+    if mode == "cloud":
+        return {"mode": "cloud", "shape": box, "spacing": h}
+    if mode == "shell":  # layers from all faces meet in the middle: the shell fills the beam
+        return {"mode": "shell", "surface": box, "spacing": h, "layers": int(round(H / (2 * h)))}
+    return {"mode": "voronoi", "shape": box, "spacing": h}
+
+
+def cantilever(sim_factory, mode, L, H, dx, E, periods=1.5):
+    """Static tip deflection of a beam clamped at x = 0 under gravity, and the Euler-Bernoulli value. Still air
+    (a wind of speed 0) damps the first mode critically (drag = 2 omega_1), so after 1.5 periods the beam
+    rests within 0.1 % of its static deflection; drag does not change the static state."""
+    M = 6 * E / 5  # docs/method.md: E_eff = 5 M / 6, nu = 1/4
+    inertia, area = H**4 / 12, H * H
+    eb = RHO * 9.81 * area * L**4 / (8 * E * inertia)
+    omega = 1.875**2 * np.sqrt(E * inertia / (RHO * area)) / L**2
+    scene = {
+        "simulation": {"duration": 1.0, "fps": 400},
+        "grid": {"cell_size": dx, "domain": {"min": [-0.3, -0.4, -0.3], "max": [L + 0.3, 0.3, 0.3]}},
+        "gravity": [0, -9.81, 0],
+        "wind": {"velocity": [0, 0, 0], "drag": 2 * omega},
+        "bodies": [{"name": "beam", "geometry": beam_geometry(mode, L, H, dx / 2),
+                    "material": {"model": "elastic", "density": RHO, "lam": M / 3, "mu": M / 3},
+                    "pins": [{"region": {"type": "box", "center": [-0.1, 0, 0], "size": [0.2, 1, 1]}}]}],
+    }
+    sim = sim_factory(scene, base={})
+    x0 = sim.model.rest_x
+    tip = np.flatnonzero(x0[:, 0] > L - 0.6 * dx)
+    sim.advance(periods * 2 * np.pi / omega)
+    return float(-(sim.state.particle_x[tip, 1] - x0[tip, 1]).mean()), eb, sim
+
+
+@pytest.mark.parametrize("mode", ["cloud", "shell", "voronoi"])
+def test_free_body_at_rest_stays_at_rest(sim_factory, mode):
+    shapes = {
+        "cloud": {"mode": "cloud", "shape": {"type": "bunny", "center": [0.5, 0.5, 0.5], "height": 0.4}},
+        "shell": {"mode": "shell", "surface": {"type": "sphere", "center": [0.5, 0.5, 0.5], "radius": 0.2},
+                  "layers": 3},
+        "voronoi": {"mode": "voronoi", "shape": {"type": "box", "center": [0.5, 0.5, 0.5], "size": [0.4, 0.3, 0.2],
+                                                 "rotation": [20, 30, 10]}},
+    }
+    sim = sim_factory({"bodies": [{**BASE["bodies"][0], "geometry": shapes[mode]}]})
+    sim.advance(100 * sim.plan.dt_max)
+    assert sim.state.step >= 100
+    speed = np.linalg.norm(sim.state.particle_v, axis=1).max()
+    print(f"{mode}: {sim.model.n_particles} particles, max speed after {sim.state.step} steps "
+          f"{speed:.3g} m/s = {speed / sim.plan.wave_speed:.3g} of the wave speed")
+    assert speed < 1e-6 * sim.plan.wave_speed
+
+
+def _three_modes(sim_factory, L, H, dx, E):
+    out = {}
+    for mode in ("cloud", "shell", "voronoi"):
+        sag, eb, sim = cantilever(sim_factory, mode, L, H, dx, E)
+        out[mode] = sag
+        print(f"{mode:8s} {sim.model.n_particles:6d} particles  sag {sag * 1e3:7.3f} mm  Euler-Bernoulli "
+              f"{eb * 1e3:7.3f} mm  error {100 * (sag / eb - 1):+6.1f} %")
+    sags = np.array(list(out.values()))
+    spread = sags.max() / sags.min() - 1
+    print(f"spread between modes {100 * spread:.1f} %")
+    return sags, eb, spread
+
+
+def test_cantilever_three_modes_reduced(sim_factory):
+    """CI size (L/H = 5, 6 particles through the thickness). Measured: cloud +14 %, shell -3 %, Voronoi -6 %
+    against Euler-Bernoulli (Timoshenko adds +4 % at this slenderness): the modes do NOT yet agree within the
+    10 % issue 4 asks (docs/results.md); this test guards the present state against regressions."""
+    sags, eb, spread = _three_modes(sim_factory, L=0.5, H=0.1, dx=1 / 30, E=1e7)
+    assert spread < 0.25
+    assert np.all(np.abs(sags / eb - 1) < 0.20)
+
+
+@pytest.mark.slow
+def test_cantilever_three_modes_match_euler_bernoulli(sim_factory):
+    """L/H = 10, 8 particles through the thickness: the issue's target, within 10 % of Euler-Bernoulli and of
+    each other (see docs/results.md for what it measures today)."""
+    sags, eb, spread = _three_modes(sim_factory, L=1.0, H=0.1, dx=0.025, E=7.4e7)
+    assert spread < 0.10
+    assert np.all(np.abs(sags / eb - 1) < 0.10)
+
+
+def cloth_scene(mu):
+    """Table 1 cloth (lam 1e6, mu as given) at a reduced size: a 0.3 m square held by two corners. A heavy
+    cloth (5000 kg/m^3) stretches visibly under its weight; still air (a wind of speed 0 with drag 8/s)
+    damps the swinging so the cloth settles to its hanging shape."""
+    corner = lambda x: {"region": {"type": "sphere", "center": [x, 0.8, 0.35], "radius": 0.016}}  # noqa: E731
+    return {
+        "simulation": {"duration": 1.0, "fps": 20},
+        "grid": {"cell_size": 0.03, "domain": {"min": [0, 0.2, 0], "max": [0.8, 1.0, 0.8]}},
+        "gravity": [0, -9.81, 0],
+        "wind": {"velocity": [0, 0, 0], "drag": 8.0},
+        "bodies": [{"name": "cloth",
+                    "geometry": {"mode": "shell", "spacing": 0.015, "edge": 0.03,
+                                 "surface": {"type": "sheet", "center": [0.4, 0.8, 0.5], "size": [0.3, 0.3],
+                                             "rotation": [-90, 0, 0]}},
+                    "material": {"model": "elastic", "density": 5000.0, "lam": 1e6, "mu": mu},
+                    "pins": [corner(0.25 + 0.007), corner(0.55 - 0.007)]}],
+    }
+
+
+def test_cloth_drapes_and_sags_less_as_mu_grows(sim_factory):
+    sags = []
+    for mu in (2e4, 1e5, 1.5e5):
+        sim = sim_factory(cloth_scene(mu), base={})
+        assert sim.model.pin_mask.sum() >= 2
+        heights = []
+        for t in np.arange(1, 21) * 0.05:
+            sim.advance(t)
+            heights.append(0.8 - sim.state.particle_x[:, 1].mean())
+        sag = float(np.mean(heights[-4:]))
+        surface = mesh_positions(sim.model, sim.state, sim.prep.disc.meshes)[0]
+        print(f"mu {mu:8.0f}: mean sag {sag * 1e3:.2f} mm (swing over the last 0.2 s "
+              f"{1e3 * np.ptp(heights[-4:]):.2f} mm), lowest point {0.8 - surface[:, 1].min():.3f} m, "
+              f"{sim.model.n_particles} particles, {sim.state.step} steps")
+        assert np.isfinite(sim.state.particle_x).all()
+        assert 0.02 < sag < 0.3  # it drapes, hanging from the pegs, and does not fall or blow up
+        sags.append(sag)
+    assert sags[0] > sags[1] > sags[2]
+
+
+def test_shell_surface_rides_along_rigid_motion(sim_factory):
+    """A spinning, flying shell: the embedded surface moves rigidly with the particles (to 1e-6 m)."""
+    geo = {"mode": "shell", "surface": {"type": "box", "center": [0.5, 0.5, 0.5], "size": [0.3, 0.2, 0.2]},
+           "layers": 2}
+    sim = sim_factory({"bodies": [{**BASE["bodies"][0], "geometry": geo, "velocity": [0.2, 0, 0],
+                                   "angular_velocity": [0, 0, 2.0]}]})
+    sim.advance(0.2)
+    mesh = sim.prep.disc.meshes[0]
+    x = mesh_positions(sim.model, sim.state, [mesh])[0]
+    # best rigid fit of the particles, applied to the rest vertices
+    X, y = sim.model.rest_x, sim.state.particle_x
+    cx, cy = X.mean(0), y.mean(0)
+    u, _, vt = np.linalg.svd((y - cy).T @ (X - cx))
+    R = u @ vt
+    expected = (mesh.vertices - cx) @ R.T + cy
+    err = np.abs(x - expected).max()
+    print(f"rotation {np.degrees(np.arccos((np.trace(R) - 1) / 2)):.1f} deg, max vertex error {err:.2g} m")
+    assert err < 2e-3  # the body also vibrates a little as it spins up (centrifugal stretch)
+
+
+def test_voronoi_fragments_follow_cell_faces(sim_factory):
+    """Every bond of a Voronoi body joins two cells that share a face, and the cell polyhedra tile the shape."""
+    geo = {"mode": "voronoi", "shape": {"type": "box", "center": [0.5, 0.5, 0.5], "size": [0.3, 0.2, 0.1]}}
+    sim = sim_factory({"bodies": [{**BASE["bodies"][0], "geometry": geo}]})
+    mesh = sim.prep.disc.meshes[0]
+    assert mesh.kind == "cells"
+    a, b, c = (mesh.vertices[mesh.triangles[:, k]] for k in range(3))
+    ctr = sim.model.rest_x[mesh.triangle_cell]
+    vol = np.einsum("ij,ij->i", a - ctr, np.cross(b - ctr, c - ctr)).sum() / 6
+    assert abs(vol / (0.3 * 0.2 * 0.1) - 1) < 0.01
+    assert np.allclose(np.bincount(mesh.triangle_cell, minlength=sim.model.n_particles) > 0, True)
+    m = sim.model
+    owner = np.repeat(np.arange(m.n_particles), np.diff(m.bond_start))
+    # a shared face: some vertex of p's polyhedron coincides with one of q's
+    cells = {}
+    for t, cell in zip(mesh.triangles, mesh.triangle_cell):
+        cells.setdefault(int(cell), set()).update(map(tuple, np.round(mesh.vertices[t], 9)))
+    shared = [len(cells[int(p)] & cells[int(q)]) >= 3 for p, q in zip(owner, m.bond_nbr)]
+    assert all(shared)
+
+
+def test_scene_schema_rejects_sheet_in_cloud_and_vertex_pins_off_shells():
+    bad = merge(BASE, {})
+    bad["bodies"][0]["geometry"] = {"mode": "cloud", "shape": {"type": "sheet", "center": [0, 0, 0], "size": [1, 1]}}
+    with pytest.raises(ValueError, match="sheet"):
+        Scene.model_validate(bad)
+    bad = merge(BASE, {})
+    bad["bodies"][0]["pins"] = [{"vertices": [0, 1]}]
+    with pytest.raises(ValueError, match="shell body"):
+        Scene.model_validate(bad)
+
+
+CUBE_V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
+CUBE_Q = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [2, 3, 7, 6], [0, 4, 7, 3], [1, 2, 6, 5]])
+
+
+def write_cube(path, quads):
+    lines = [f"v {x} {y} {z}" for x, y, z in CUBE_V] + ["f " + " ".join(str(i + 1) for i in q) for q in quads]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def mesh_body(mode, path, layers=2):
+    shape = {"type": "mesh", "path": str(path), "scale": 0.3, "translate": [0.35, 0.35, 0.35]}
+    geo = {"mode": "shell", "surface": shape, "layers": layers} if mode == "shell" else {"mode": mode, "shape": shape}
+    return {"bodies": [{**BASE["bodies"][0], "geometry": geo}]}
+
+
+def test_mesh_with_hole_or_flipped_normals_gets_a_clear_message(sim_factory, tmp_path):
+    from pdmpm_cli.errors import InputError
+
+    holed = write_cube(tmp_path / "holed.obj", CUBE_Q[:5])
+    with pytest.raises(InputError, match="not closed: .*boundary edges.*Fill Holes"):
+        sim_factory(mesh_body("cloud", holed))
+    sim = sim_factory(mesh_body("shell", holed))  # open shells are allowed (cloth), with a warning
+    assert any("open" in w and "fill its holes" in w for w in sim.plan.warnings())
+    inverted = write_cube(tmp_path / "inverted.obj", CUBE_Q[:, ::-1])
+    sim = sim_factory(mesh_body("shell", inverted))
+    assert any("flipped all faces" in w for w in sim.plan.warnings())
+    assert sim.model.rest_x.min() > 0.35 and sim.model.rest_x.max() < 0.65  # the layers went inwards
+    one_flipped = write_cube(tmp_path / "one_flipped.obj", np.vstack([CUBE_Q[:5], CUBE_Q[5:, ::-1]]))
+    for mode in ("cloud", "shell", "voronoi"):
+        with pytest.raises(InputError, match="inconsistent orientation"):
+            sim_factory(mesh_body(mode, one_flipped))
+
+
+def test_shell_layers_filling_a_thin_beam_are_thinned_without_losing_volume():
+    """Layers from opposite faces of a 0.1 m beam meet inside it: crowded points merge, volume is kept."""
+    from pdmpm_cli.geometry import shell
+    from pdmpm_cli.geometry.shapes import rotation_matrix
+
+    h = 0.0125
+    surface = shell.primitive_surface("box", center=np.zeros(3), R=rotation_matrix((0, 0, 0)), edge=h,
+                                      size=(0.6, 0.1, 0.1))
+    raw = shell.shell_particles(surface, h, 4, np.random.default_rng(0), first_depth=0.5)
+    thin = shell.thin_crowded(raw, h)
+    from scipy.spatial import cKDTree
+
+    nn = lambda x: cKDTree(x).query(x, 2)[0][:, 1].min() / h  # noqa: E731
+    print(f"{len(raw.points)} -> {len(thin.points)} points, nearest neighbour {nn(raw.points):.2f} h -> "
+          f"{nn(thin.points):.2f} h, volume {raw.volumes.sum():.6g} -> {thin.volumes.sum():.6g} m^3 "
+          f"(beam {0.6 * 0.1 * 0.1:.6g})")
+    assert nn(thin.points) >= 0.5 and nn(raw.points) < 0.2
+    assert abs(thin.volumes.sum() / raw.volumes.sum() - 1) < 1e-12
+    assert abs(thin.volumes.sum() / (0.6 * 0.1 * 0.1) - 1) < 0.01
+    assert np.all(thin.layer[: np.sum(raw.layer == 0)] == 0)  # the surface layer is never thinned
