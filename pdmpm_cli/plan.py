@@ -54,12 +54,11 @@ class Plan:
         return asdict(self)
 
     def warnings(self) -> list[str]:
-        if not self.dt_reduced:
-            return list(self.notes)
-        return [*self.notes,
-            f"simulation.dt = {self.dt_user:.3g} s is above the stability bound; using {self.dt_max:.3g} s "
-            f"(CFL bound {self.dt_cfl:.3g} s, bond bound {self.dt_bond:.3g} s)"
-        ]
+        out = list(self.notes)
+        if self.dt_reduced:
+            out.append(f"simulation.dt = {self.dt_user:.3g} s is above the stability bound; using {self.dt_max:.3g} s "
+                       f"(CFL bound {self.dt_cfl:.3g} s, bond bound {self.dt_bond:.3g} s)")
+        return out
 
 
 def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:

@@ -182,10 +182,7 @@ def convex_planes(shape, base_dir: Path, resolution: int, name: str) -> np.ndarr
                              f"convex hull is {100 * (hull / vol - 1):.2g} % larger than it); use mode: cloud, or "
                              f"split the mesh into convex parts as separate bodies")
         return planes
-    edge = 2.0 * np.pi * shape.radius / resolution
-    c = np.asarray(shape.center, dtype=np.float64)
-    R = shapes.rotation_matrix(getattr(shape, "rotation", (0.0, 0.0, 0.0)))
-    surface = shell.primitive_surface(shape.type, center=c, R=R, edge=edge, **primitive_kwargs(shape))
+    surface = body_surface(shape, base_dir, 2.0 * np.pi * shape.radius / resolution, allow_open=False)
     return voronoi.polytope_from_points(surface.vertices)
 
 

@@ -16,13 +16,13 @@ generator reproduces the points exactly.
 
 from __future__ import annotations
 
-import math
 from typing import Callable
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from pdmpm_cli.errors import InputError, PdmpmError
+from pdmpm_cli.geometry.shapes import _positive
 
 __all__ = ["SAMPLINGS", "MIN_SEPARATION", "MAX_CELLS", "lattice_points", "fill_shape"]
 
@@ -42,12 +42,7 @@ def _check_box(lo, hi, h) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
         raise InputError(f"bounds must be two points of 3 coordinates, got lo={lo!r}, hi={hi!r}")
     if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))) or np.any(hi < lo):
         raise InputError(f"invalid bounds lo={lo.tolist()}, hi={hi.tolist()} (need finite lo <= hi)")
-    try:
-        h = float(h)
-    except (TypeError, ValueError):
-        raise InputError(f"particle spacing h must be a number, got {h!r}") from None
-    if not (math.isfinite(h) and h > 0.0):
-        raise InputError(f"particle spacing h must be a positive length in metres, got {h!r}")
+    h = _positive(h, "particle spacing h")
     # tolerance so that an extent that is an exact multiple of h (up to rounding) is not padded
     n = np.maximum(1, np.ceil((hi - lo) / h - 1e-9)).astype(np.int64)
     total = int(np.prod(n.astype(object)))

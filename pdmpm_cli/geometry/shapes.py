@@ -66,7 +66,7 @@ def _positive(x, name: str, *, allow_zero: bool = False) -> float:
     ok = (v >= 0.0) if allow_zero else (v > 0.0)
     if not (math.isfinite(v) and ok):
         need = "non-negative" if allow_zero else "positive"
-        raise InputError(f"{name} must be a finite {need} length in metres, got {x!r}")
+        raise InputError(f"{name} must be a {need} length in metres (finite), got {x!r}")
     return v
 
 

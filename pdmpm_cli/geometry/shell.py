@@ -626,12 +626,7 @@ def shell_particles(mesh: SurfaceMesh, h: float, layers: int, rng: np.random.Gen
     (k + first_depth) h. 0 (default) puts layer 0 on the surface; 0.5 centres the layers'
     slabs in [0, layers h], so that they fill the body's shell exactly (no half slab outside).
     """
-    try:
-        h = float(h)
-    except (TypeError, ValueError):
-        raise InputError(f"{what}: particle spacing h must be a number, got {h!r}") from None
-    if not (math.isfinite(h) and h > 0.0):
-        raise InputError(f"{what}: particle spacing h must be a positive length in metres, got {h!r}")
+    h = _positive(h, f"{what}: particle spacing h")
     if isinstance(layers, bool) or not isinstance(layers, (int, np.integer)) or layers < 1:
         raise InputError(f"{what}: layers must be a whole number >= 1 (1 = a cloth on the surface), got {layers!r}")
     layers = int(layers)

@@ -37,6 +37,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, Delaunay, QhullError, cKDTree
 
 from pdmpm_cli.errors import InputError
+from pdmpm_cli.geometry.shapes import _positive
 
 __all__ = [
     "MAX_SEEDS",
@@ -631,12 +632,7 @@ def voronoi_cells(planes: np.ndarray, spacing: float | None, count: int | None, 
         raise ValueError("voronoi_cells: give exactly one of spacing and count")
     poly = _polytope(_as_planes(planes, what), what)
     if spacing is not None:
-        try:
-            h = float(spacing)
-        except (TypeError, ValueError):
-            raise InputError(f"{what}: Voronoi spacing must be a length in metres, got {spacing!r}") from None
-        if not (math.isfinite(h) and h > 0.0):
-            raise InputError(f"{what}: Voronoi spacing must be a positive length in metres, got {spacing!r}")
+        h = _positive(spacing, f"{what}: Voronoi spacing")
         seeds = _jittered_seeds(poly, h, rng, what)
         if seeds.shape[0] < 2:
             raise _seed_count_error(what, seeds.shape[0], h, poly)
