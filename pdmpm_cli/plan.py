@@ -95,9 +95,8 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
     phases = ["fbar"] if need_fbar else []
     for stage in ("return_map", "bonds", "families"):
         phases += [f"{stage}:{k}" for k in used if stage in MATERIALS[k].phases]
-    phases += ["p2g", "grid_update", "g2p"]
-    if fracture:
-        phases += ["crack", "fracture"]
+    # Crack particles meet the grid's material after its update and before intact particles read it back.
+    phases += ["p2g", "grid_update", *(["crack"] if fracture else []), "g2p", *(["fracture"] if fracture else [])]
     n, nb, nodes = disc.n_particles, disc.n_bonds, model.grid_shape
     fields = {
         "particle_x": ((n, 3), "f8"), "particle_v": ((n, 3), "f8"), "particle_C": ((n, 3, 3), "f8"),

@@ -31,10 +31,10 @@ class Prepared:
     plan: Plan
 
 
-def prepare(path, overrides=()) -> Prepared:
-    """Load and validate the scene file, discretise it, and make the Plan."""
+def prepare(path, overrides=(), variant: str | None = None) -> Prepared:
+    """Load and validate the scene file (with one of its variants), discretise it, and make the Plan."""
     path = Path(path)
-    scene, text = load_scene(path, Scene, list(overrides))
+    scene, text = load_scene(path, Scene, list(overrides), variant)
     return prepare_scene(scene, path, text)
 
 
@@ -116,8 +116,10 @@ def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwr
     static = static_fields(model, meshes)
     writers = []
     if scene.output.hdf5:
+        # The plan carries the scene as validated (with --set and --variant applied) for readers such as render.
+        record = {**plan.to_dict(), "scene": scene.model_dump(mode="json")}
         writers.append(Hdf5RunWriter(out / "run.h5", scene_text=prep.text, plan=json.loads(json.dumps(
-            plan.to_dict(), default=_jsonable)), static=static, compression=scene.output.compression))
+            record, default=_jsonable)), static=static, compression=scene.output.compression))
     if scene.output.vtk:
         writers.append(VtkSeriesWriter(out / "vtk", static=static))
     if meshes and scene.output.meshes:

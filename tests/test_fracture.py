@@ -10,7 +10,7 @@ from scipy.sparse.csgraph import connected_components
 
 from pdmpm_cli.engine.bonds import build_families
 from pdmpm_cli.engine.colliders import collider_table
-from pdmpm_cli.engine.fracture import (bond_criterion, crack_particle_update, damage, fracture_update,
+from pdmpm_cli.engine.fracture import (bond_criterion, crack_contact, crack_particle_update, damage, fracture_update,
                                        inactive_fraction)
 
 H = 0.01  # lattice spacing [m]
@@ -59,7 +59,7 @@ def fracture_loop(threshold, start, end, x, rest_x, bond_start, bond_nbr, bond_a
     cut = 0
     for update in range(max_updates):
         inactive_fraction(x, ORIGIN, 1.0 / DX, CELLS, bond_start, bond_active, inactive)
-        if bond_criterion(start, end, threshold, x, rest_x, bond_start, bond_nbr, bond_active, NO_EP, inactive,
+        if bond_criterion(start, end, threshold, 1.0, x, rest_x, bond_start, bond_nbr, bond_active, NO_EP, inactive,
                           lmax, bmax) == 0:
             return cut, update
         cut += fracture_update(threshold, DELTA, start, end, x, rest_x, bond_start, bond_nbr, bond_active, lmax,
@@ -121,8 +121,9 @@ def test_bond_criterion_uniform_stretch_plastic_strain_and_inactive_fraction():
     active = np.ones(len(bond_nbr), np.uint8)
     lmax, bmax = np.zeros(n), np.zeros(n, np.int64)
 
-    def criterion(threshold, ep, inactive):
-        return bond_criterion(0, n, threshold, x, rest_x, bond_start, bond_nbr, active, ep, inactive, lmax, bmax)
+    def criterion(threshold, ep, inactive, resistance=1.0):
+        return bond_criterion(0, n, threshold, resistance, x, rest_x, bond_start, bond_nbr, active, ep, inactive,
+                              lmax, bmax)
 
     assert criterion(0.02, NO_EP, np.zeros(n)) == n
     np.testing.assert_allclose(lmax, s0, rtol=0, atol=1e-12)
@@ -131,6 +132,8 @@ def test_bond_criterion_uniform_stretch_plastic_strain_and_inactive_fraction():
     np.testing.assert_allclose(lmax, s0 / 2, rtol=0, atol=1e-12)
     assert criterion(0.02, NO_EP, np.ones(n)) == 0
     np.testing.assert_allclose(lmax, s0 / 2, rtol=0, atol=1e-12)
+    assert criterion(0.02, NO_EP, np.ones(n), resistance=0.0) == n  # damage_resistance 0: p_inactive ignored
+    np.testing.assert_allclose(lmax, s0, rtol=0, atol=1e-12)
     # a particle whose bonds are all broken has no criterion and is no candidate
     rev = reverse(bond_start, bond_nbr)
     active[bond_start[0]:bond_start[1]] = 0
@@ -252,7 +255,9 @@ def test_crack_particle_update_symplectic_euler_colliders_and_box():
     crack = np.array([1, 1, 1, 0, 1], np.uint8)
     x, v = x0.copy(), v0.copy()
     c = np.ones((5, 3, 3))
-    vmax, bad = crack_particle_update(dt, gravity, t_new, colliders, lo, hi, crack, mass, force, x, v, c)
+    grid = np.zeros((12, 12, 12, 4))  # no material on the grid: no contact, only the own-force update
+    crack_contact(grid, dt, gravity, np.zeros(3), 10.0, crack, np.ones(5), mass, np.full(5, 1e-3), force, x, v)
+    vmax, bad = crack_particle_update(dt, t_new, colliders, lo, hi, crack, x, v, c)
 
     v_free = v0[0] + dt * (force[0] / mass[0] + gravity)
     np.testing.assert_allclose(v[0], v_free, rtol=0, atol=1e-15)
@@ -267,6 +272,32 @@ def test_crack_particle_update_symplectic_euler_colliders_and_box():
     assert x[4, 0] == hi[0] and v[4, 0] == 0.0
     assert bad == 0
     assert vmax == pytest.approx(np.linalg.norm(v[crack == 1], axis=1).max())
+
+
+def test_crack_contact_with_grid_material_is_inelastic_and_conserves_momentum():
+    """A crack particle flying into a slab of material on the grid (x < 0.5) loses its approach velocity along
+    the slab's normal; the slab takes the impulse. One flying away, or outside the material, is untouched."""
+    n, dx = 20, 0.05
+    grid = np.zeros((n, n, n, 4))
+    rho = 1000.0
+    grid[:10, :, :, 0] = rho * dx**3  # material filling x < 0.5 m (node mass of a full cell)
+    grid[:10, :, :, 1:] = [0.1, 0.0, 0.0]  # moving slowly in +x
+    x = np.array([[0.47, 0.5, 0.5], [0.47, 0.5, 0.5], [0.8, 0.5, 0.5]])
+    v0 = np.array([[-2.0, 0.3, 0.0], [1.0, 0.0, 0.0], [-2.0, 0.0, 0.0]])
+    v = v0.copy()
+    mass = np.full(3, rho * (dx / 2) ** 3)
+    crack = np.ones(3, np.uint8)
+    before = grid.copy()
+    momentum = lambda g, vv: (g[..., :1] * g[..., 1:]).sum(axis=(0, 1, 2)) + mass @ vv  # noqa: E731
+    energy = lambda g, vv: 0.5 * (g[..., 0] * (g[..., 1:] ** 2).sum(-1)).sum() + 0.5 * mass @ (vv**2).sum(1)  # noqa: E731
+    crack_contact(grid, 0.0, np.zeros(3), np.zeros(3), 1.0 / dx, crack, np.ones(3), mass, mass / rho, np.zeros((3, 3)),
+                  x, v)
+    np.testing.assert_allclose(momentum(grid, v), momentum(before, v0), rtol=1e-13)
+    assert energy(grid, v) < energy(before, v0)
+    # the particle and the lump of slab around it move on together along the normal (x); sliding is kept
+    assert -2.0 < v[0, 0] < 0.1 and v[0, 1] == pytest.approx(0.3) and v[0, 2] == 0.0
+    assert grid[:10, :, :, 1].min() < 0.1  # the slab was pushed back where the particle hit
+    np.testing.assert_array_equal(v[1:], v0[1:])  # separating, and outside the material
 
 
 def test_cuts_never_leave_half_broken_pairs():

@@ -5,7 +5,7 @@ import sys
 import typer
 from rich.console import Console
 
-from pdmpm_cli.cli import run, schema, validate
+from pdmpm_cli.cli import render, run, scenes, schema, validate
 from pdmpm_cli.errors import PdmpmError
 
 app = typer.Typer(
@@ -18,6 +18,8 @@ app = typer.Typer(
 app.command("run")(run.run)
 app.command("validate")(validate.validate)
 app.command("schema")(schema.schema)
+app.command("scenes")(scenes.scenes)
+app.command("render")(render.render)
 
 err_console = Console(stderr=True, highlight=False)
 

@@ -8,7 +8,7 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from pdmpm_cli.cli.options import SceneArg, SetOpt
+from pdmpm_cli.cli.options import SceneArg, SetOpt, VariantOpt
 
 
 class RichReporter:
@@ -45,7 +45,8 @@ class RichReporter:
 def run(
     scene: SceneArg,
     set_: SetOpt = [],
-    out: Annotated[Path | None, typer.Option("--out", "-o", help="Output folder (default outputs/<scene name>).")] = None,
+    variant: VariantOpt = None,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Output folder (default outputs/<scene file stem>[-<variant>]).")] = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the outputs of an earlier run.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ):
@@ -53,10 +54,10 @@ def run(
     from pdmpm_cli.runner import prepare, simulate
 
     console = Console(stderr=True, highlight=False, soft_wrap=True)
-    prep = prepare(scene, set_)
+    prep = prepare(scene, set_, variant)
     for w in prep.plan.warnings():
         console.print(f"[yellow]warning:[/] {w}")
-    out = out or Path("outputs") / scene.stem
+    out = out or Path("outputs") / (scene.stem if variant is None else f"{scene.stem}-{variant}")
     plan = prep.plan
     console.print(f"{prep.scene.name}: {plan.particles} particles, {plan.bonds} bonds, {plan.frames} frames, "
                   f"dt <= {plan.dt_max:.3g} s -> {out}")

@@ -7,19 +7,20 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from pdmpm_cli.cli.options import SceneArg, SetOpt
+from pdmpm_cli.cli.options import SceneArg, SetOpt, VariantOpt
 
 
 def validate(
     scene: SceneArg,
     set_: SetOpt = [],
+    variant: VariantOpt = None,
     explain: Annotated[bool, typer.Option("--explain", help="Print the Plan: phases, arrays, dt bounds, counts.")] = False,
 ):
     """Validate a scene file: schema, geometry and bonds. Exit code 2 on any problem."""
     from pdmpm_cli.runner import prepare
 
     console = Console(highlight=False, soft_wrap=True)
-    prep = prepare(scene, set_)
+    prep = prepare(scene, set_, variant)
     plan = prep.plan
     for w in plan.warnings():
         console.print(f"[yellow]warning:[/] {w}")

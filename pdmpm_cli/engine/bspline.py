@@ -18,3 +18,20 @@ def cubic_weights(fx, w):
         else:
             w[i] = 0.0
     return base
+
+
+@njit(cache=True, inline="always")
+def cubic_weights_grad(fx, w, g):
+    """Like cubic_weights, and fill g[4] with dN/dfx (per cell: divide by dx for a gradient in 1/m)."""
+    base = cubic_weights(fx, w)
+    for i in range(4):
+        d = fx - (base + i)
+        a = abs(d)
+        s = 1.0 if d >= 0.0 else -1.0
+        if a < 1.0:
+            g[i] = s * (1.5 * a * a - 2.0 * a)
+        elif a < 2.0:
+            g[i] = -s * 0.5 * (2.0 - a) ** 2
+        else:
+            g[i] = 0.0
+    return base

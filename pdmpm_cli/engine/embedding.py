@@ -5,7 +5,9 @@ Each mesh vertex v is tied to particles i with weights w_vi (EmbeddedMesh) and p
 exact for any affine motion of the particles. F_i is the particle's local deformation over its INTACT bonds,
     F_i = (A_i + eps tr(K_i) I)(K_i + eps tr(K_i) I)^-1,  A_i = sum_q w V_q eta (x) xi,  K_i = sum_q w V_q xi (x) xi,
 so a fragment carries its cells along rigidly, directions a family does not span (a cloth's normal, a particle
-with one bond left) map to themselves, and a particle with no bond left just translates its cell.
+with one bond left) map to themselves, and a particle with no bond left just translates its cell. The singular
+values of F are clamped to [1/2, 2]: a family that barely spans a direction (a torn cell's few nearly coplanar
+bonds) would otherwise amplify a small misalignment into a vertex thrown metres away.
 """
 
 import numpy as np
@@ -14,6 +16,7 @@ from numba import njit, prange
 from pdmpm_cli.engine.bonds import bond_vector
 
 REGULARISATION = 1e-6  # eps: a relative stiffness of 1e-6 pulls missing directions to the identity
+STRETCH_LIMIT = 2.0  # singular values of F stay within [1 / STRETCH_LIMIT, STRETCH_LIMIT]
 
 
 @njit(parallel=True, cache=True)
@@ -45,7 +48,10 @@ def local_deformation(particle_x, rest_x, particle_volume, bond_start, bond_nbr,
         for i in range(3):
             a[i, i] += reg
             k[i, i] += reg
-        particle_F[p] = a @ np.linalg.inv(k)
+        u, sv, vt = np.linalg.svd(a @ np.linalg.inv(k))
+        for i in range(3):
+            sv[i] = min(max(sv[i], 1.0 / STRETCH_LIMIT), STRETCH_LIMIT)
+        particle_F[p] = u @ np.diag(sv) @ vt
 
 
 @njit(parallel=True, cache=True)

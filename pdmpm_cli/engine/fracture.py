@@ -18,9 +18,11 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from pdmpm_cli.engine.bonds import bond_vector
+from pdmpm_cli.engine.bspline import cubic_weights_grad
 from pdmpm_cli.engine.colliders import collide_all, push_out
 from pdmpm_cli.engine.transfer import particle_speed
 
+CONTACT_DAMAGE = 0.5  # crack particles with at least this damage (mostly detached) take part in grid contact
 SPLIT_COS = math.cos(math.pi / 4.0)  # candidates whose bonds open in directions > 45 degrees apart: two cracks
 
 
@@ -68,16 +70,17 @@ def inactive_fraction(particle_x, origin, inv_dx, cells, bond_start, bond_active
 
 
 @njit(parallel=True, cache=True)
-def bond_criterion(start, end, threshold, particle_x, rest_x, bond_start, bond_nbr, bond_active, bond_ep,
+def bond_criterion(start, end, threshold, resistance, particle_x, rest_x, bond_start, bond_nbr, bond_active, bond_ep,
                    particle_inactive, particle_lmax, particle_bmax):
     """Largest eq. 21 criterion over each particle's active bonds -> particle_lmax, its bond -> particle_bmax.
 
+    `resistance` k weighs p_inactive: l = (s - e_p) / (1 + k p_inactive); k = 1 is eq. 21.
     A particle without active bonds gets 0 and -1. bond_ep of shape (0,) means no plasticity (e_p = 0).
     Returns the number of particles of start..end-1 over the threshold (fracture candidates)."""
     has_ep = bond_ep.shape[0] > 0
     count = 0
     for p in prange(start, end):
-        scale = 1.0 / (1.0 + particle_inactive[p])
+        scale = 1.0 / (1.0 + resistance * particle_inactive[p])
         best = -np.inf
         arg = -1
         for b in range(bond_start[p], bond_start[p + 1]):
@@ -246,14 +249,80 @@ def damage(bond_start, bond_active, particle_damage, particle_crack):
         particle_crack[p] = 1 if broken > 0 else 0
 
 
-@njit(parallel=True, cache=True)
-def crack_particle_update(dt, gravity, t_new, colliders, lo, hi, particle_crack, particle_mass, particle_force,
-                          particle_x, particle_v, particle_C):
-    """Grid-free symplectic Euler of crack-surface particles (end of section 6) -> particle_x, _v, _C.
+@njit(cache=True)
+def crack_contact(grid, dt, gravity, origin, inv_dx, particle_crack, particle_damage, particle_mass, particle_volume,
+                  particle_force, particle_x, particle_v):
+    """Crack-surface particles: v += dt (f / m + g) by their own bond force, then an inelastic normal contact with
+    the material on the grid (intact particles, other bodies) -> particle_v and the grid velocities.
 
-    v += dt (f / m + g), collider response, x += dt v, then push-out and the box [lo, hi] (a separating
-    wall). C = 0: the particle takes no affine motion from a grid. Returns (max speed, non-finite count)
-    over the crack particles, like g2p."""
+    A crack particle inside the grid's material (interpolated mass m_g over half a cell of its own density)
+    and approaching it along n = -grad m_g loses its normal velocity relative to the grid's, v_g, as in a
+    perfectly inelastic collision of m_p with m_g; the grid takes the opposite impulse J, node velocities
+    changing by -w_i J / m_g. Momentum is conserved exactly and the kinetic energy cannot grow
+    (docs/method.md, 'Fracture'). Serial: every contact writes grid nodes, in a fixed order."""
+    wx, wy, wz = np.empty(4), np.empty(4), np.empty(4)
+    gx, gy, gz = np.empty(4), np.empty(4), np.empty(4)
+    dx3 = 1.0 / (inv_dx * inv_dx * inv_dx)
+    nx, ny, nz = grid.shape[0], grid.shape[1], grid.shape[2]
+    for p in range(particle_x.shape[0]):
+        if particle_crack[p] == 0:
+            continue
+        mp = particle_mass[p]
+        for a in range(3):
+            particle_v[p, a] += dt * (particle_force[p, a] / mp + gravity[a])
+        fx = (particle_x[p, 0] - origin[0]) * inv_dx
+        fy = (particle_x[p, 1] - origin[1]) * inv_dx
+        fz = (particle_x[p, 2] - origin[2]) * inv_dx
+        if not (fx >= 1.0 and fy >= 1.0 and fz >= 1.0 and fx < nx - 3 and fy < ny - 3 and fz < nz - 3):
+            continue
+        bx = cubic_weights_grad(fx, wx, gx)
+        by = cubic_weights_grad(fy, wy, gy)
+        bz = cubic_weights_grad(fz, wz, gz)
+        mg = 0.0
+        grad = np.zeros(3)
+        mom = np.zeros(3)
+        for i in range(4):
+            for j in range(4):
+                for k in range(4):
+                    m = grid[bx + i, by + j, bz + k, 0]
+                    if m <= 0.0:
+                        continue
+                    w = wx[i] * wy[j] * wz[k]
+                    mg += w * m
+                    grad[0] += gx[i] * wy[j] * wz[k] * m
+                    grad[1] += wx[i] * gy[j] * wz[k] * m
+                    grad[2] += wx[i] * wy[j] * gz[k] * m
+                    for a in range(3):
+                        mom[a] += w * m * grid[bx + i, by + j, bz + k, 1 + a]
+        g = math.sqrt(grad[0] ** 2 + grad[1] ** 2 + grad[2] ** 2)
+        if particle_damage[p] < CONTACT_DAMAGE or mg < 0.5 * mp / particle_volume[p] * dx3 or g == 0.0:
+            continue
+        rel = 0.0
+        for a in range(3):
+            rel -= (particle_v[p, a] - mom[a] / mg) * grad[a] / g
+        if rel >= 0.0:
+            continue
+        impulse = -rel * mp * mg / (mp + mg)  # > 0, along n = -grad / |grad|
+        for a in range(3):
+            particle_v[p, a] -= impulse / mp * grad[a] / g
+        for i in range(4):
+            for j in range(4):
+                for k in range(4):
+                    if grid[bx + i, by + j, bz + k, 0] <= 0.0:
+                        continue
+                    w = wx[i] * wy[j] * wz[k]
+                    for a in range(3):
+                        grid[bx + i, by + j, bz + k, 1 + a] += w * impulse / mg * grad[a] / g
+
+
+@njit(parallel=True, cache=True)
+def crack_particle_update(dt, t_new, colliders, lo, hi, particle_crack, particle_x, particle_v, particle_C):
+    """Grid-free symplectic Euler of crack-surface particles (end of section 6), after crack_contact set their
+    velocity -> particle_x, _v, _C.
+
+    Collider response, x += dt v, then push-out and the box [lo, hi] (a separating wall). C = 0: the particle
+    takes no affine motion from a grid. Returns (max speed, non-finite count) over the crack particles, like
+    g2p."""
     vmax = 0.0
     bad = 0
     for p in prange(particle_x.shape[0]):
@@ -262,7 +331,7 @@ def crack_particle_update(dt, gravity, t_new, colliders, lo, hi, particle_crack,
         v = np.empty(3)
         nrm = np.empty(3)
         for a in range(3):
-            v[a] = particle_v[p, a] + dt * (particle_force[p, a] / particle_mass[p] + gravity[a])
+            v[a] = particle_v[p, a]
         if colliders.shape[0]:
             collide_all(colliders, particle_x[p, 0], particle_x[p, 1], particle_x[p, 2], t_new, v, nrm)
         for a in range(3):

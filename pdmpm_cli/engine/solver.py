@@ -6,7 +6,8 @@ from collections import defaultdict
 import numpy as np
 
 from pdmpm_cli.engine.bonds import averaged_deformation
-from pdmpm_cli.engine.fracture import bond_criterion, crack_particle_update, damage, fracture_update, inactive_fraction
+from pdmpm_cli.engine.fracture import (bond_criterion, crack_contact, crack_particle_update, damage, fracture_update,
+                                      inactive_fraction)
 from pdmpm_cli.engine.materials import MATERIALS
 from pdmpm_cli.engine.model import Model, State
 from pdmpm_cli.engine.transfer import WALL, p2g, grid_update, g2p
@@ -23,6 +24,7 @@ class Solver:
         self.model = model
         self.plan = plan
         self.vmax = 0.0
+        self.crack_vmax = 0.0  # max speed of the crack particles, set before g2p each step
         self.energy_budget = 0.0
         self.energy_prev = 0.0  # kinetic + strain energy at the previous frame [J]
         self.phase_time = defaultdict(float)  # wall seconds spent in each phase, for benchmarks
@@ -87,18 +89,21 @@ class Solver:
 
     def g2p(self, state: State, dt: float):
         m = self.model
-        self.vmax, bad = g2p(state.grid, dt, m.origin, 1.0 / m.dx, state.time + dt, m.colliders, m.pin_mask,
-                             m.pin_velocity, state.particle_crack, state.particle_x, state.particle_v, state.particle_C)
+        vmax, bad = g2p(state.grid, dt, m.origin, 1.0 / m.dx, state.time + dt, m.colliders, m.pin_mask,
+                        m.pin_velocity, state.particle_crack, state.particle_x, state.particle_v, state.particle_C)
+        self.vmax = max(vmax, self.crack_vmax)
         if bad:
             self.fail_nonfinite(state)
 
     def crack(self, state: State, dt: float):
-        """Crack-surface particles advance by their own bond forces, gravity and collisions (section 6)."""
+        """Crack-surface particles advance by their own bond forces, gravity and collisions (section 6), and
+        meet the material on the grid in an inelastic contact."""
         m = self.model
-        vmax, bad = crack_particle_update(dt, m.gravity, state.time + dt, m.colliders, self.valid_lo, self.valid_hi,
-                                          state.particle_crack, m.particle_mass, state.particle_force,
-                                          state.particle_x, state.particle_v, state.particle_C)
-        self.vmax = max(self.vmax, vmax)
+        crack_contact(state.grid, dt, m.gravity, m.origin, 1.0 / m.dx, state.particle_crack, state.particle_damage,
+                      m.particle_mass, m.particle_volume, state.particle_force, state.particle_x, state.particle_v)
+        self.crack_vmax, bad = crack_particle_update(dt, state.time + dt, m.colliders, self.valid_lo, self.valid_hi,
+                                                     state.particle_crack, state.particle_x, state.particle_v,
+                                                     state.particle_C)
         if bad:
             self.fail_nonfinite(state)
 
@@ -113,9 +118,9 @@ class Solver:
         for body in self.fracture_bodies:
             start, end = m.body_ranges[body]
             threshold = m.fracture[body].threshold
-            if bond_criterion(start, end, threshold, state.particle_x, m.rest_x, state.bond_start, state.bond_nbr,
-                              state.bond_active, state.bond_ep, state.particle_inactive, state.particle_lmax,
-                              state.particle_bmax):
+            if bond_criterion(start, end, threshold, m.fracture[body].damage_resistance, state.particle_x, m.rest_x,
+                              state.bond_start, state.bond_nbr, state.bond_active, state.bond_ep,
+                              state.particle_inactive, state.particle_lmax, state.particle_bmax):
                 cut += fracture_update(threshold, m.body_horizon[body], start, end, state.particle_x, m.rest_x,
                                        state.bond_start, state.bond_nbr, state.bond_active, state.particle_lmax,
                                        state.particle_bmax)

@@ -17,7 +17,8 @@ Layout (``format = "pdmpm-run"``, ``format_version = 1``)::
                               pdmpm_version, numpy_version, numba_version, h5py_version,
                               hdf5_version, created (ISO 8601, UTC)
     /scene_text             scalar UTF-8 string dataset: the scene YAML the run was started from
-    /plan_json              scalar UTF-8 string dataset: ``json.dumps`` of the resolved run plan
+    /plan_json              scalar UTF-8 string dataset: ``json.dumps`` of the resolved run plan; its
+                            "scene" key holds the scene as validated (overrides and variant applied)
     /static/<name>          one dataset per field written once (particle_X, particle_mass, ...)
     /frames/time            (n_frames,) float64, simulation time of each frame
     /frames/<name>          (n_frames, *shape) one dataset per per-frame field (particle_x, ...)

@@ -1,8 +1,8 @@
 """Animated meshes for Blender, Houdini and ParaView: one binary PLY per mesh and frame.
 
 ``<directory>/<body>_NNNNN.ply`` holds a shell body's surface (its input mesh, carried by the particles) or a
-Voronoi body's cell polyhedra (each cell's own vertices, so fragments separate as solid pieces; the face
-property ``cell`` is the particle index of the cell). Blender imports a numbered PLY sequence with a
+Voronoi body's cell polyhedra (each cell's own vertices, so fragments separate as solid pieces; run.h5's
+``triangle_cell`` gives the particle index of each triangle's cell). Blender imports a numbered PLY sequence with a
 mesh-sequence add-on, ParaView opens ``<body>_..ply`` as a file series. Every file is written atomically.
 
 The vertex positions come from the frame field ``vertex_x`` (all meshes' vertices, concatenated); the
@@ -15,7 +15,6 @@ import os
 import re
 from pathlib import Path
 
-import meshio
 import numpy as np
 
 from pdmpm_cli.io.atomic import atomic_path
@@ -46,23 +45,36 @@ def safe_name(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "body"
 
 
+def write_ply(path: Path, vertices: np.ndarray, triangles: np.ndarray) -> None:
+    """Binary little-endian PLY of float32 vertices and triangles, written directly (meshio warns on 64-bit
+    indices and cannot read back scalar face properties, so none are written)."""
+    faces = np.empty(len(triangles), dtype=[("n", "u1"), ("vertex_indices", "<i4", (3,))])
+    faces["n"] = 3
+    faces["vertex_indices"] = triangles
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(vertices)}", "property float x",
+              "property float y", "property float z", f"element face {len(triangles)}",
+              "property list uchar int vertex_indices", "end_header"]
+    with open(path, "wb") as f:
+        f.write(("\n".join(header) + "\n").encode("ascii"))
+        f.write(np.ascontiguousarray(vertices, dtype="<f4").tobytes())
+        f.write(faces.tobytes())
+
+
 class MeshSeriesWriter:
     """Writes ``<body>_NNNNN.ply`` for every embedded mesh at every frame."""
 
     def __init__(self, directory: str | os.PathLike[str], meshes) -> None:
         self.directory = Path(directory)
         self.path = self.directory
-        self._meshes = [(safe_name(m.name), m.triangles, m.triangle_cell) for m in meshes]
+        self._meshes = [(safe_name(m.name), m.triangles) for m in meshes]
         self._starts = np.cumsum([0] + [len(m.vertices) for m in meshes])
         self.directory.mkdir(parents=True, exist_ok=True)
 
     def write_frame(self, index: int, time: float, fields: dict[str, np.ndarray]) -> None:
         vertices = fields[VERTEX_FIELD]
-        for (name, triangles, cells), a, b in zip(self._meshes, self._starts[:-1], self._starts[1:]):
-            cell_data = {"cell": [cells.astype(np.int32)]} if len(cells) else {}
-            mesh = meshio.Mesh(vertices[a:b], [("triangle", triangles)], cell_data=cell_data)
+        for (name, triangles), a, b in zip(self._meshes, self._starts[:-1], self._starts[1:]):
             with atomic_path(self.directory / f"{name}_{index:05d}.ply") as tmp:
-                meshio.write(tmp, mesh, file_format="ply", binary=True)
+                write_ply(tmp, vertices[a:b], triangles)
 
     def close(self) -> None:
         """Nothing is buffered: each file is complete on disk."""

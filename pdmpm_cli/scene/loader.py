@@ -207,19 +207,20 @@ def parse_overrides(items: list[str]) -> list[tuple[list[str | int], object]]:
     return out
 
 
-def _apply(data: dict, keys: list[str | int], value: object) -> DataPath:
+def _apply(data: dict, keys: list[str | int], value: object, source: str = OVERRIDE,
+           mark: Mark | None = None) -> DataPath:
     """Set one override, creating missing mappings on the way; return the path it set."""
     node, path, key = data, (), _dotted(keys)
     for i, seg in enumerate(keys):
         if isinstance(node, list):
             if not isinstance(seg, int):
-                raise _fail(OVERRIDE, f"{_dotted(path)} is a list; use an item number, e.g. {_dotted(path)}.0", key)
+                raise _fail(source, f"{_dotted(path)} is a list; use an item number, e.g. {_dotted(path)}.0", key, mark)
             if seg >= len(node):
-                raise _fail(OVERRIDE, f"index {seg} is past the end of {_dotted(path)} (it has {len(node)} items)", key)
+                raise _fail(source, f"index {seg} is past the end of {_dotted(path)} (it has {len(node)} items)", key, mark)
         elif isinstance(node, dict):
             seg = str(seg)
         else:
-            raise _fail(OVERRIDE, f"{_dotted(path)} is {node!r}, not a mapping or list", key)
+            raise _fail(source, f"{_dotted(path)} is {node!r}, not a mapping or list", key, mark)
         path += (seg,)
         if i == len(keys) - 1:
             node[seg] = value
@@ -378,16 +379,17 @@ def _explain(err: dict, model_cls: type[BaseModel], data: Any) -> tuple[DataPath
     return path, "value", msg
 
 
-def _problem(err: dict, model_cls: type[BaseModel], tree: _Tree, set_paths: list[DataPath]) -> Problem:
-    """Turn one pydantic error into a Problem located in the file, or at the --set that put the value there."""
+def _problem(err: dict, model_cls: type[BaseModel], tree: _Tree, set_paths: list[tuple[DataPath, str, Any]]) -> Problem:
+    """Turn one pydantic error into a Problem located in the file, or at the --set (or variant line) that put the
+    value there. `set_paths` holds (path set, where it came from, its mark or None)."""
     path, how, message = _explain(err, model_cls, tree.data)
     anchor = path[:-1] if how == "parent" else path
-    for sp in reversed(set_paths):
+    for sp, source, mark in reversed(set_paths):
         inside = path[: len(sp)] == sp
         created = anchor and sp[: len(anchor)] == anchor and anchor not in tree.marks
         if inside or created:
-            return Problem(OVERRIDE, None, None, _dotted(path), message)
-    if how == "value" and (within := [_dotted(sp) for sp in set_paths if sp[: len(path)] == path]):
+            return Problem(source, *(mark or (None, None)), _dotted(path), message)
+    if how == "value" and (within := [_dotted(sp) for sp, _, _ in set_paths if sp[: len(path)] == path]):
         message += f" (with --set {', '.join(within)})"  # a model's own check may fail because of an override
     mark = tree.where(anchor, key=how == "key")
     return Problem(tree.file, *(mark or (None, None)), _dotted(path), message)
@@ -413,13 +415,37 @@ def _read(path: str | os.PathLike, file: str) -> str:
         raise _fail(file, f"not UTF-8 text (byte 0x{raw[e.start]:02x}); save the file as UTF-8", mark=mark) from None
 
 
-def load_scene(path: str | os.PathLike, model_cls: type[M], overrides: Sequence[str] = ()) -> tuple[M, str]:
-    """Read, parse, override and validate a scene; return (model instance, file text) or raise SceneError."""
+def _variant_edits(tree: _Tree, name: str) -> list[tuple[list[str | int], object, Mark | None]]:
+    """The overrides of the scene's top-level `variants.<name>` mapping (dotted key: value, as --set), each with
+    the position of its line."""
+    variants = tree.data.get("variants") or {}
+    if not isinstance(variants, dict) or name not in variants:
+        names = list(variants) if isinstance(variants, dict) else []
+        where = tree.marks.get(("variants",))
+        defined = f"it defines {', '.join(names)}" if names else "it defines none (add a top-level 'variants:' mapping)"
+        raise _fail(tree.file, f"no variant {name!r}{_did_you_mean(name, names)}; {defined}", "variants", where)
+    edits = variants[name]
+    if not isinstance(edits, dict):
+        raise _fail(tree.file, "a variant is a mapping of dotted keys to values, e.g. bodies.0.material.mu: 2.0e4",
+                    f"variants.{name}", tree.marks.get(("variants", name)))
+    return [([int(s) if re.fullmatch(r"[0-9]+", s) else s for s in str(key).split(".")], value,
+             tree.marks.get(("variants", name, key))) for key, value in edits.items()]
+
+
+def load_scene(path: str | os.PathLike, model_cls: type[M], overrides: Sequence[str] = (),
+               variant: str | None = None) -> tuple[M, str]:
+    """Read, parse, override and validate a scene; return (model instance, file text) or raise SceneError.
+
+    A `variant` applies the scene's own `variants.<variant>` overrides first; `overrides` (--set) win over it."""
     file = str(path)
     edits = parse_overrides(list(overrides))
     text = _read(path, file)
     tree = _Tree(file, text)
-    set_paths = [_apply(tree.data, keys, value) for keys, value in edits]
+    set_paths = []
+    if variant is not None:
+        set_paths = [(_apply(tree.data, keys, value, file, mark), file, mark)
+                     for keys, value, mark in _variant_edits(tree, variant)]
+    set_paths += [(_apply(tree.data, keys, value), OVERRIDE, None) for keys, value in edits]
     try:
         return model_cls.model_validate(tree.data), text
     except ValidationError as e:

@@ -7,7 +7,7 @@ geometry modes, materials and colliders are discriminated unions keyed by `type`
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, Union
+from typing import Annotated, Any, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -251,6 +251,11 @@ class Fracture(Strict):
     threshold: float = Field(
         gt=0, description="Critical bond strain: a bond fails when (stretch - e_p) / (1 + p_inactive) exceeds it "
         "(eq. 21; Table 1: 0.05 for the broken board) [-].")
+    damage_resistance: float = Field(
+        1.0, ge=0, description="Weight k of p_inactive in eq. 21, l = (stretch - e_p) / (1 + k p_inactive): 1 is the "
+        "paper (a cell that already holds broken bonds resists further breaking, so a slowly pulled bar breaks "
+        "cleanly); 0 lets a started crack cut through (a wall hit hard breaks into pieces instead of stalling in "
+        "bands of partial damage) [-].")
 
 
 # ---------------------------------------------------------------- bodies
@@ -427,6 +432,32 @@ class Output(Strict):
     compression: Literal["none", "lzf", "gzip"] = Field("lzf", description="HDF5 dataset compression.")
 
 
+class Camera(Strict):
+    """A fixed viewpoint for `pdmpm render`."""
+
+    position: Vec3 = Field(description="Camera position [m].")
+    focus: Vec3 = Field(description="Point the camera looks at [m].")
+    up: Vec3 = Field((0.0, 1.0, 0.0), description="Up direction of the image [-].")
+    view_angle: float = Field(30.0, gt=0, lt=180, description="Vertical field of view [degrees].")
+
+
+class RenderSettings(Strict):
+    """Defaults for `pdmpm render`; its command-line options override them."""
+
+    camera: Camera | None = Field(
+        None, description="Viewpoint; absent: a 3/4 view framing the particles over all frames.")
+    field: Literal["speed", "damage", "plastic", "body"] = Field(
+        "speed", description="Colour by: particle speed [m/s], damage [-], plastic strain [-] or body index.")
+    resolution: tuple[int, int] = Field(
+        (1280, 720), description="Image width and height [px].")
+
+    @model_validator(mode="after")
+    def _positive(self):
+        if min(self.resolution) < 16:
+            raise ValueError(f"resolution must be at least 16 x 16 px (got {list(self.resolution)})")
+        return self
+
+
 class Scene(Strict):
     """A pdmpm scene: run settings, grid, bodies, colliders and outputs."""
 
@@ -439,6 +470,11 @@ class Scene(Strict):
     colliders: list[Collider] = Field(default_factory=list, description="Kinematic level-set colliders.")
     wind: Wind | None = Field(None, description="Uniform wind acting on all material on the grid; absent: none.")
     output: Output = Field(default_factory=Output)
+    render: RenderSettings = Field(
+        default_factory=RenderSettings, description="Defaults for `pdmpm render` (camera, colour field, image size).")
+    variants: dict[str, dict[str, Any]] = Field(
+        default_factory=dict, description="Named sets of overrides, each a mapping 'dotted.key: value' as in --set "
+        "(e.g. soft: {bodies.0.material.mu: 2.0e4}); `pdmpm run scene.yaml --variant soft` applies one.")
 
     @model_validator(mode="after")
     def _unique_names(self):

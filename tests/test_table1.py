@@ -1,0 +1,78 @@
+"""CI regression of the paper's Table 1 scenes (tests/table1.py): each scene at reduced resolution shows its
+figure's behaviour, matches the stored baseline, and a deliberate material change is caught by the baseline."""
+
+import pytest
+
+from tests.table1 import CASES, deviations, fragments, load_baselines, run_case
+
+BASE = load_baselines()
+
+
+def metrics(name):
+    trace, m = run_case(name)
+    print(f"\n{name}: {trace.model.n_particles} particles, {trace.seconds:.1f} s: "
+          + ", ".join(f"{k} {v:.4g}" for k, v in m.items()))
+    return m
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_matches_baseline(name):
+    """Every metric within its tolerance of tests/baselines/table1.json (regenerate: python -m tests.table1
+    --update)."""
+    assert name in BASE, f"no baseline for {name}: run python -m tests.table1 --update {name}"
+    assert not deviations(name, metrics(name), BASE[name])
+
+
+SLOW_PERTURBATION = {"wall_break"}  # a second 8900-particle fracture run: with -m slow
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_PERTURBATION else n
+                                  for n in CASES])
+def test_material_change_is_caught(name):
+    """The case's perturbation (a material parameter changed) moves some metric out of its tolerance."""
+    _, perturbed = run_case(name, perturbed=True)
+    caught = deviations(name, perturbed, BASE[name])
+    print(f"\n{name} with {CASES[name].perturb}: {caught}")
+    assert caught
+
+
+def test_cloth_folds_ordered_by_mu():
+    """Cloth: the folds grow as the shear modulus falls (mu = 2e4 < 1e5 < 1.5e5 Pa)."""
+    folds = [metrics(f"cloth_{v}")["fold_rms_mm"] for v in ("soft", "medium", "stiff")]
+    assert folds[0] > folds[1] > folds[2]
+
+
+def test_beams_sag_ordered_by_mu():
+    m = metrics("beams")
+    assert m["sag_mu0_mm"] > m["sag_mu50_mm"] > m["sag_mu500_mm"] > 0
+
+
+def test_elastic_board_springs_back_and_plastic_board_keeps_a_dent():
+    elastic, plastic = metrics("board_elastic"), metrics("board_plastic")
+    assert elastic["peak_mm"] > 5 and abs(elastic["residual_ratio"]) < 0.15
+    assert plastic["peak_mm"] > 5 and plastic["residual_ratio"] > 0.3
+
+
+def test_elastic_bunnies_recover_and_plastic_bunnies_stay_deformed():
+    elastic, plastic = metrics("bunnies_elastic"), metrics("bunnies_plastic")
+    assert elastic["recovery_ratio"] < 0.35
+    assert plastic["recovery_ratio"] > 0.6
+
+
+def test_wall_breaks_into_a_few_large_pieces():
+    m = metrics("wall_break")
+    trace, _ = run_case("wall_break")
+    sizes = fragments(trace, 0)
+    print(f"pieces {len(sizes)}; largest (cells) {sizes[:8].tolist()}; pieces of 1 cell {int((sizes == 1).sum())}, "
+          f"2-4 cells {int(((sizes > 1) & (sizes < 5)).sum())}, 5-99 cells {int(((sizes >= 5) & (sizes < 100)).sum())}")
+    assert 2 <= m["large_pieces"] <= 6 and m["large_share"] > 0.6 and m["dust_share"] < 0.15
+
+
+def test_honey_spreads_and_piles():
+    m = metrics("honey")
+    assert m["spread_ratio"] > 1.5 and m["height_mm"] > 60
+
+
+def test_cream_flows_but_keeps_height():
+    m = metrics("cream_pie")
+    assert m["spread_ratio"] > 1.1 and m["thickness_ratio"] > 0.6
