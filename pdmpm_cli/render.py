@@ -568,17 +568,21 @@ class _Scene:
 
 
 def write_video(images: list[Path], folder: Path, fps: float) -> Path:
-    """animation.mp4 when imageio can reach ffmpeg (imageio-ffmpeg), else animation.gif (pillow)."""
-    import imageio.v2 as imageio
+    """animation.mp4 when imageio and imageio-ffmpeg are installed, else animation.gif (pillow, which pyvista
+    brings)."""
+    if importlib.util.find_spec("imageio") is not None and importlib.util.find_spec("imageio_ffmpeg") is not None:
+        import imageio.v2 as imageio
 
-    if importlib.util.find_spec("imageio_ffmpeg") is not None:
         path = folder / "animation.mp4"
         with imageio.get_writer(path, fps=fps, codec="libx264", quality=8) as writer:
             for image in images:
                 writer.append_data(imageio.imread(image))
         return path
+    from PIL import Image
+
     path = folder / "animation.gif"
-    imageio.mimsave(path, [imageio.imread(image) for image in images], duration=1000 / fps, loop=0)
+    first, *rest = [Image.open(image).convert("RGB") for image in images]
+    first.save(path, save_all=True, append_images=rest, duration=round(1000 / fps), loop=0)
     return path
 
 

@@ -92,7 +92,7 @@ def test_frames_slice_resolution_and_video(runs, monkeypatch, capsys, tmp_path):
     assert code == 0, err
     assert sorted(p.name for p in out.iterdir()) == ["frame_00001.png", "frame_00003.png"]
     assert Image.open(out / "frame_00001.png").size == (160, 120)
-    if importlib.util.find_spec("imageio_ffmpeg"):
+    if importlib.util.find_spec("imageio") and importlib.util.find_spec("imageio_ffmpeg"):
         assert (runs["drop"] / "animation.mp4").stat().st_size > 0
     else:
         assert Image.open(runs["drop"] / "animation.gif").n_frames == 2
