@@ -23,6 +23,7 @@ import numpy as np
 import yaml
 from pydantic import TypeAdapter, ValidationError
 
+from pdmpm_cli.engine.transfer import WALL
 from pdmpm_cli.errors import InputError
 from pdmpm_cli.scene.schema import Camera, Collider, RenderSettings
 
@@ -38,9 +39,7 @@ FIELDS = {
     "plastic": ("particle_plastic_strain", "plastic strain [-]"),
     "body": ("particle_body", "body"),
 }
-# Material rests on the domain walls about this many cells inside grid.domain (at the last of the
-# engine.transfer.WALL = 3 wall nodes).
-FLOOR_CELLS = 2
+FLOOR_CELLS = WALL - 1  # material rests on the domain walls this many cells inside grid.domain
 BODY_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
                "#17becf")  # matplotlib's tab10, in order: body 0 blue, body 1 orange, ...
 FLUID_GRID_CELLS = 2e7  # cap on the splatting grid of a fluid surface (memory, marching-cubes time)
@@ -251,9 +250,10 @@ def parse_frames(text: str | None, n: int) -> list[int]:
 def parse_resolution(text: str) -> tuple[int, int]:
     """'1280x720' -> (1280, 720)."""
     match = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
-    if not match or min(int(match[1]), int(match[2])) < 16:
-        raise InputError(f"--resolution {text!r}: expected WIDTHxHEIGHT in pixels, each >= 16, e.g. 1280x720")
-    return int(match[1]), int(match[2])
+    try:
+        return RenderSettings(resolution=(int(match[1]), int(match[2]))).resolution  # the schema's size check
+    except (TypeError, ValidationError):  # no match, or too small
+        raise InputError(f"--resolution {text!r}: expected WIDTHxHEIGHT in pixels, each >= 16, e.g. 1280x720") from None
 
 
 def parse_camera(text: str) -> Camera:

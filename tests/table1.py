@@ -38,7 +38,6 @@ class Trace:
 
     model: object
     state: State
-    times: np.ndarray
     x: list[np.ndarray]
     seconds: float
 
@@ -207,12 +206,11 @@ def run_case(name: str, perturbed: bool = False) -> tuple[Trace, dict[str, float
     solver = Solver(model, plan)
     solver.start(state)
     t0 = time.perf_counter()
-    times, xs = [0.0], [state.particle_x.copy()]
+    xs = [state.particle_x.copy()]
     for i in range(1, plan.frames + 1):
         solver.advance(state, i * plan.frame_dt)
-        times.append(state.time)
         xs.append(state.particle_x.copy())
-    trace = Trace(model, state, np.array(times), xs, time.perf_counter() - t0)
+    trace = Trace(model, state, xs, time.perf_counter() - t0)
     return trace, case.metrics(trace)
 
 

@@ -46,7 +46,8 @@ def run(
     scene: SceneArg,
     set_: SetOpt = [],
     variant: VariantOpt = None,
-    out: Annotated[Path | None, typer.Option("--out", "-o", help="Output folder (default outputs/<scene file stem>[-<variant>]).")] = None,
+    out: Annotated[Path | None, typer.Option(
+        "--out", "-o", help="Output folder (default outputs/<scene file stem>[-<variant>]).")] = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the outputs of an earlier run.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ):

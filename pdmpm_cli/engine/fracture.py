@@ -20,7 +20,7 @@ from scipy.sparse.csgraph import connected_components
 from pdmpm_cli.engine.bonds import bond_vector
 from pdmpm_cli.engine.bspline import cubic_weights_grad
 from pdmpm_cli.engine.colliders import collide_all, push_out
-from pdmpm_cli.engine.transfer import particle_speed
+from pdmpm_cli.engine.transfer import particle_speed, stencil_on_grid
 
 CONTACT_DAMAGE = 0.5  # crack particles with at least this damage (mostly detached) take part in grid contact
 SPLIT_COS = math.cos(math.pi / 4.0)  # candidates whose bonds open in directions > 45 degrees apart: two cracks
@@ -70,8 +70,8 @@ def inactive_fraction(particle_x, origin, inv_dx, cells, bond_start, bond_active
 
 
 @njit(parallel=True, cache=True)
-def bond_criterion(start, end, threshold, resistance, particle_x, rest_x, bond_start, bond_nbr, bond_active, bond_ep,
-                   particle_inactive, particle_lmax, particle_bmax):
+def bond_criterion(start, end, threshold, resistance, particle_x, rest_x, bond_start, bond_nbr, bond_active,
+                   bond_ep, particle_inactive, particle_lmax, particle_bmax):
     """Largest eq. 21 criterion over each particle's active bonds -> particle_lmax, its bond -> particle_bmax.
 
     `resistance` k weighs p_inactive: l = (s - e_p) / (1 + k p_inactive); k = 1 is eq. 21.
@@ -250,30 +250,31 @@ def damage(bond_start, bond_active, particle_damage, particle_crack):
 
 
 @njit(cache=True)
-def crack_contact(grid, dt, gravity, origin, inv_dx, particle_crack, particle_damage, particle_mass, particle_volume,
-                  particle_force, particle_x, particle_v):
+def crack_contact(grid, dt, gravity, origin, inv_dx, particle_crack, particle_damage, particle_mass,
+                  particle_volume, particle_force, particle_x, particle_v):
     """Crack-surface particles: v += dt (f / m + g) by their own bond force, then an inelastic normal contact with
     the material on the grid (intact particles, other bodies) -> particle_v and the grid velocities.
 
-    A crack particle inside the grid's material (interpolated mass m_g over half a cell of its own density)
-    and approaching it along n = -grad m_g loses its normal velocity relative to the grid's, v_g, as in a
-    perfectly inelastic collision of m_p with m_g; the grid takes the opposite impulse J, node velocities
-    changing by -w_i J / m_g. Momentum is conserved exactly and the kinetic energy cannot grow
+    A crack particle with damage >= CONTACT_DAMAGE, inside the grid's material (interpolated mass m_g over half
+    a cell of its own density) and approaching it along n = -grad m_g loses its normal velocity relative to the
+    grid's, v_g, as in a perfectly inelastic collision of m_p with m_g; the grid takes the opposite impulse J,
+    node velocities changing by -w_i J / m_g. Momentum is conserved exactly and the kinetic energy cannot grow
     (docs/method.md, 'Fracture'). Serial: every contact writes grid nodes, in a fixed order."""
     wx, wy, wz = np.empty(4), np.empty(4), np.empty(4)
     gx, gy, gz = np.empty(4), np.empty(4), np.empty(4)
     dx3 = 1.0 / (inv_dx * inv_dx * inv_dx)
-    nx, ny, nz = grid.shape[0], grid.shape[1], grid.shape[2]
     for p in range(particle_x.shape[0]):
         if particle_crack[p] == 0:
             continue
         mp = particle_mass[p]
         for a in range(3):
             particle_v[p, a] += dt * (particle_force[p, a] / mp + gravity[a])
+        if particle_damage[p] < CONTACT_DAMAGE:
+            continue
         fx = (particle_x[p, 0] - origin[0]) * inv_dx
         fy = (particle_x[p, 1] - origin[1]) * inv_dx
         fz = (particle_x[p, 2] - origin[2]) * inv_dx
-        if not (fx >= 1.0 and fy >= 1.0 and fz >= 1.0 and fx < nx - 3 and fy < ny - 3 and fz < nz - 3):
+        if not stencil_on_grid(fx, fy, fz, grid):
             continue
         bx = cubic_weights_grad(fx, wx, gx)
         by = cubic_weights_grad(fy, wy, gy)
@@ -295,7 +296,7 @@ def crack_contact(grid, dt, gravity, origin, inv_dx, particle_crack, particle_da
                     for a in range(3):
                         mom[a] += w * m * grid[bx + i, by + j, bz + k, 1 + a]
         g = math.sqrt(grad[0] ** 2 + grad[1] ** 2 + grad[2] ** 2)
-        if particle_damage[p] < CONTACT_DAMAGE or mg < 0.5 * mp / particle_volume[p] * dx3 or g == 0.0:
+        if mg < 0.5 * mp / particle_volume[p] * dx3 or g == 0.0:
             continue
         rel = 0.0
         for a in range(3):

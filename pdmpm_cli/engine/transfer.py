@@ -25,6 +25,13 @@ def particle_speed(v, particle_x, p):
     return -1.0
 
 
+@njit(cache=True, inline="always")
+def stencil_on_grid(fx, fy, fz, grid):
+    """Whether the 4 x 4 x 4 B-spline stencil of a particle at (fx, fy, fz) (in cells) lies on the grid."""
+    return fx >= 1.0 and fy >= 1.0 and fz >= 1.0 and fx < grid.shape[0] - 3 and fy < grid.shape[1] - 3 \
+        and fz < grid.shape[2] - 3
+
+
 @njit(parallel=True, cache=True)
 def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt, origin,
         inv_dx, box, grid_private, grid):
@@ -38,7 +45,6 @@ def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, parti
     has_pins = pin_mask.shape[0] > 0
     nt = grid_private.shape[0]
     n = particle_x.shape[0]
-    nx, ny, nz = grid.shape[0], grid.shape[1], grid.shape[2]
     outside = 0
     for t in prange(nt):
         g = grid_private[t]
@@ -52,7 +58,7 @@ def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, parti
             fx = (particle_x[p, 0] - origin[0]) * inv_dx
             fy = (particle_x[p, 1] - origin[1]) * inv_dx
             fz = (particle_x[p, 2] - origin[2]) * inv_dx
-            if not (fx >= 1.0 and fy >= 1.0 and fz >= 1.0 and fx < nx - 3 and fy < ny - 3 and fz < nz - 3):
+            if not stencil_on_grid(fx, fy, fz, grid):
                 outside += 1
                 continue
             bx = cubic_weights(fx, wx)

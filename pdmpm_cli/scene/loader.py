@@ -186,6 +186,11 @@ class _Tree:
 # ---------------------------------------------------------------- overrides
 
 
+def _segments(parts: list[str]) -> list[str | int]:
+    """The parts of a dotted key, with digits as list indices: ['bodies', '0', 'mu'] -> ['bodies', 0, 'mu']."""
+    return [int(s) if re.fullmatch(r"[0-9]+", s) else s for s in parts]
+
+
 def parse_overrides(items: list[str]) -> list[tuple[list[str | int], object]]:
     """Parse `a.b.0.c=value` items; the value is YAML (`1e5`, `[1, 2, 3]`, `{model: elastic}`)."""
     out, problems = [], []
@@ -201,7 +206,7 @@ def parse_overrides(items: list[str]) -> list[tuple[list[str | int], object]]:
             message = f"cannot read value {text!r} as YAML: {getattr(e, 'problem', e)}"
             problems.append(Problem(OVERRIDE, None, None, key.strip(), message))
             continue
-        out.append(([int(s) if re.fullmatch(r"[0-9]+", s) else s for s in segs], value))
+        out.append((_segments(segs), value))
     if problems:
         raise SceneError(problems)
     return out
@@ -214,9 +219,11 @@ def _apply(data: dict, keys: list[str | int], value: object, source: str = OVERR
     for i, seg in enumerate(keys):
         if isinstance(node, list):
             if not isinstance(seg, int):
-                raise _fail(source, f"{_dotted(path)} is a list; use an item number, e.g. {_dotted(path)}.0", key, mark)
+                raise _fail(source, f"{_dotted(path)} is a list; use an item number, e.g. {_dotted(path)}.0", key,
+                            mark)
             if seg >= len(node):
-                raise _fail(source, f"index {seg} is past the end of {_dotted(path)} (it has {len(node)} items)", key, mark)
+                raise _fail(source, f"index {seg} is past the end of {_dotted(path)} (it has {len(node)} items)", key,
+                            mark)
         elif isinstance(node, dict):
             seg = str(seg)
         else:
@@ -379,7 +386,8 @@ def _explain(err: dict, model_cls: type[BaseModel], data: Any) -> tuple[DataPath
     return path, "value", msg
 
 
-def _problem(err: dict, model_cls: type[BaseModel], tree: _Tree, set_paths: list[tuple[DataPath, str, Any]]) -> Problem:
+def _problem(err: dict, model_cls: type[BaseModel], tree: _Tree,
+             set_paths: list[tuple[DataPath, str, Mark | None]]) -> Problem:
     """Turn one pydantic error into a Problem located in the file, or at the --set (or variant line) that put the
     value there. `set_paths` holds (path set, where it came from, its mark or None)."""
     path, how, message = _explain(err, model_cls, tree.data)
@@ -389,8 +397,9 @@ def _problem(err: dict, model_cls: type[BaseModel], tree: _Tree, set_paths: list
         created = anchor and sp[: len(anchor)] == anchor and anchor not in tree.marks
         if inside or created:
             return Problem(source, *(mark or (None, None)), _dotted(path), message)
-    if how == "value" and (within := [_dotted(sp) for sp, _, _ in set_paths if sp[: len(path)] == path]):
-        message += f" (with --set {', '.join(within)})"  # a model's own check may fail because of an override
+    if how == "value" and (within := [f"{'--set' if source == OVERRIDE else 'the variant'} {_dotted(sp)}"
+                                      for sp, source, _ in set_paths if sp[: len(path)] == path]):
+        message += f" (with {', '.join(within)})"  # a model's own check may fail because of an override
     mark = tree.where(anchor, key=how == "key")
     return Problem(tree.file, *(mark or (None, None)), _dotted(path), message)
 
@@ -428,8 +437,8 @@ def _variant_edits(tree: _Tree, name: str) -> list[tuple[list[str | int], object
     if not isinstance(edits, dict):
         raise _fail(tree.file, "a variant is a mapping of dotted keys to values, e.g. bodies.0.material.mu: 2.0e4",
                     f"variants.{name}", tree.marks.get(("variants", name)))
-    return [([int(s) if re.fullmatch(r"[0-9]+", s) else s for s in str(key).split(".")], value,
-             tree.marks.get(("variants", name, key))) for key, value in edits.items()]
+    return [(_segments(str(key).split(".")), value, tree.marks.get(("variants", name, key)))
+            for key, value in edits.items()]
 
 
 def load_scene(path: str | os.PathLike, model_cls: type[M], overrides: Sequence[str] = (),
