@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from pdmpm_cli.engine.bonds import averaged_deformation
+from pdmpm_cli.engine.parallel import particle_chunks
 from pdmpm_cli.engine.materials.elastic import effective_constants, elastic_energy, elastic_forces
 
 NONE_U1 = np.zeros(0, np.uint8)  # no fracture: every bond intact
@@ -24,12 +25,12 @@ def deform(sim, F):
     x = (m.rest_x - c) @ np.asarray(F).T + c
     fbar = np.zeros((len(x), 3, 3))
     averaged_deformation(0, len(x), x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, m.particle_body,
-                         m.body_horizon, m.particle_Kinv, fbar)
+                         m.body_horizon, m.particle_Kinv, fbar, particle_chunks())
     mat = m.materials[0]
     delta = m.body_horizon[0]
     force = np.zeros_like(x)
     elastic_forces(0, len(x), mat.lam, mat.mu, delta, x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr,
-                   NONE_U1, NONE_F8, NONE_U1, m.particle_coef, fbar, force)
+                   NONE_U1, NONE_F8, NONE_U1, m.particle_coef, fbar, force, particle_chunks())
     w = np.array([elastic_energy(p, p + 1, mat.lam, mat.mu, delta, x, m.rest_x, m.particle_volume, m.bond_start,
                                  m.bond_nbr, NONE_U1, NONE_F8, NONE_U1, m.particle_coef, fbar) / m.particle_volume[p]
                   for p in range(len(x))])

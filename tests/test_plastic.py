@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from pdmpm_cli.engine.bonds import averaged_deformation
+from pdmpm_cli.engine.parallel import particle_chunks
 from pdmpm_cli.engine.materials.elastic import averaged_bond
 from pdmpm_cli.engine.materials.plastic import bond_dilatation, plastic_return_map
 
@@ -54,7 +55,7 @@ def test_shear_load_unload_reload(sim_factory):
         x = m.rest_x.copy()
         x[:, 0] += g * (m.rest_x[:, 1] - c[1])
         averaged_deformation(0, n, x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, m.particle_body,
-                             m.body_horizon, m.particle_Kinv, fbar)
+                             m.body_horizon, m.particle_Kinv, fbar, particle_chunks())
         bond_dilatation(0, n, delta, x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, NONE_U1, theta)
         worst = max(worst, plastic_return_map(0, n, lam + 2 * mu, 0.5 * sy**2, x, m.rest_x, m.bond_start,
                                               m.bond_nbr, NONE_U1, theta, ep))

@@ -11,6 +11,8 @@ import numpy as np
 from numba import njit, prange
 from scipy.spatial import cKDTree
 
+from pdmpm_cli.engine.parallel import VECTOR_MATH
+
 # Regularisation of rank-deficient shape tensors (cloth, chains): K + EPS tr(K) I, exact within the span.
 RANK_TOL = 1e-6
 EPS = 1e-9
@@ -98,28 +100,57 @@ def reference_family_terms(rest_x, particle_volume, bond_start, bond_nbr, partic
         invert_shape_tensor(k, particle_Kinv[p])
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True)
+def chunk_width(bond_start, lo, hi):
+    """Largest family in particles lo..hi-1: the length of a chunk's bond scratch rows."""
+    width = 0
+    for p in range(lo, hi):
+        width = max(width, bond_start[p + 1] - bond_start[p])
+    return width
+
+
+@njit(parallel=True, cache=True, fastmath=VECTOR_MATH, error_model="numpy")
 def averaged_deformation(start, end, particle_x, rest_x, particle_volume, bond_start, bond_nbr, particle_body,
-                         body_horizon, particle_Kinv, particle_Fbar):
+                         body_horizon, particle_Kinv, particle_Fbar, chunks):
     """Fbar_p = (sum_q w V_q eta (x) xi) K_p^-1 (eq. 4 with METHOD.md's correction: eta, not w, in front) for
     particles start..end-1, over the whole reference family: only intact particles use Fbar (a particle with a
-    broken bond uses eta instead, elastic.py), so the sum always matches the K^-1 it is multiplied by."""
-    for p in prange(start, end):
-        delta = body_horizon[particle_body[p]]
-        a = np.zeros((3, 3))
-        for b in range(bond_start[p], bond_start[p + 1]):
-            q = bond_nbr[b]
-            x0, x1, x2, r = bond_vector(rest_x, p, q)
-            wv = (1.0 - r / delta) * particle_volume[q]
-            xi = (x0, x1, x2)
-            for i in range(3):
-                e = wv * (particle_x[q, i] - particle_x[p, i])
-                for c in range(3):
-                    a[i, c] += e * xi[c]
-        kinv = particle_Kinv[p]
-        for i in range(3):
+    broken bond uses eta instead, elastic.py), so the sum always matches the K^-1 it is multiplied by.
+
+    Two loops per particle: a gather of its neighbours' bond vectors into contiguous scratch rows, then a
+    loop without gathers that the compiler turns into SIMD (the weights' square roots included)."""
+    n = end - start
+    for t in prange(chunks):
+        lo, hi = start + t * n // chunks, start + (t + 1) * n // chunks
+        s = np.empty((7, chunk_width(bond_start, lo, hi)))  # xi (3), eta (3), V_q
+        for p in range(lo, hi):
+            inv_delta = 1.0 / body_horizon[particle_body[p]]
+            r0, r1, r2 = rest_x[p, 0], rest_x[p, 1], rest_x[p, 2]
+            p0, p1, p2 = particle_x[p, 0], particle_x[p, 1], particle_x[p, 2]
+            b0, m = bond_start[p], bond_start[p + 1] - bond_start[p]
+            for k in range(m):
+                q = bond_nbr[b0 + k]
+                s[0, k], s[1, k], s[2, k] = rest_x[q, 0] - r0, rest_x[q, 1] - r1, rest_x[q, 2] - r2
+                s[3, k], s[4, k], s[5, k] = particle_x[q, 0] - p0, particle_x[q, 1] - p1, particle_x[q, 2] - p2
+                s[6, k] = particle_volume[q]
+            a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
+            for k in range(m):
+                x0, x1, x2 = s[0, k], s[1, k], s[2, k]
+                w = (1.0 - math.sqrt(x0 * x0 + x1 * x1 + x2 * x2) * inv_delta) * s[6, k]
+                e0, e1, e2 = w * s[3, k], w * s[4, k], w * s[5, k]
+                a00 += e0 * x0
+                a01 += e0 * x1
+                a02 += e0 * x2
+                a10 += e1 * x0
+                a11 += e1 * x1
+                a12 += e1 * x2
+                a20 += e2 * x0
+                a21 += e2 * x1
+                a22 += e2 * x2
+            k = particle_Kinv[p]
             for c in range(3):
-                particle_Fbar[p, i, c] = a[i, 0] * kinv[0, c] + a[i, 1] * kinv[1, c] + a[i, 2] * kinv[2, c]
+                particle_Fbar[p, 0, c] = a00 * k[0, c] + a01 * k[1, c] + a02 * k[2, c]
+                particle_Fbar[p, 1, c] = a10 * k[0, c] + a11 * k[1, c] + a12 * k[2, c]
+                particle_Fbar[p, 2, c] = a20 * k[0, c] + a21 * k[1, c] + a22 * k[2, c]
 
 
 def calibration_coefficients(particle_omega, particle_body, body_horizon):

@@ -349,7 +349,7 @@ def crack_particle_update(dt, t_new, colliders, lo, hi, particle_crack, particle
             particle_v[p, a] = v[a]
             for c in range(3):
                 particle_C[p, a, c] = 0.0
-        s = particle_speed(v, particle_x, p)
+        s = particle_speed(v[0], v[1], v[2], particle_x, p)
         if s < 0.0:
             bad += 1
         else:

@@ -6,6 +6,7 @@ from collections import defaultdict
 import numpy as np
 
 from pdmpm_cli.engine.bonds import averaged_deformation
+from pdmpm_cli.engine.parallel import particle_chunks
 from pdmpm_cli.engine.fracture import (bond_criterion, crack_contact, crack_particle_update, damage, fracture_update,
                                       inactive_fraction)
 from pdmpm_cli.engine.materials import MATERIALS
@@ -49,7 +50,7 @@ class Solver:
             start, end = m.body_ranges[body]
             averaged_deformation(start, end, state.particle_x, m.rest_x, m.particle_volume, state.bond_start,
                                  state.bond_nbr, m.particle_body, m.body_horizon,
-                                 m.particle_Kinv, state.particle_Fbar)
+                                 m.particle_Kinv, state.particle_Fbar, particle_chunks())
 
     def material_phase(self, state: State, stage: str, kind: str, dt: float):
         """Run a material's phase (e.g. return_map:plastic, bonds:elastic) on every body of that kind."""
@@ -90,7 +91,8 @@ class Solver:
     def g2p(self, state: State, dt: float):
         m = self.model
         vmax, bad = g2p(state.grid, dt, m.origin, 1.0 / m.dx, state.time + dt, m.colliders, m.pin_mask,
-                        m.pin_velocity, state.particle_crack, state.particle_x, state.particle_v, state.particle_C)
+                        m.pin_velocity, state.particle_crack, state.particle_x, state.particle_v, state.particle_C,
+                        particle_chunks())
         self.vmax = max(vmax, self.crack_vmax)
         if bad:
             self.fail_nonfinite(state)

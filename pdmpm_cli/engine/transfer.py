@@ -17,9 +17,9 @@ WALL = 3  # nodes within this many cells of the domain edge act as walls; partic
 
 
 @njit(cache=True, inline="always")
-def particle_speed(v, particle_x, p):
+def particle_speed(v0, v1, v2, particle_x, p):
     """|v| of particle p after its update, or -1 when its velocity or position is not finite."""
-    s = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    s = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
     if math.isfinite(s) and math.isfinite(particle_x[p, 0] + particle_x[p, 1] + particle_x[p, 2]):
         return s
     return -1.0
@@ -45,6 +45,7 @@ def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, parti
     has_pins = pin_mask.shape[0] > 0
     nt = grid_private.shape[0]
     n = particle_x.shape[0]
+    dx = 1.0 / inv_dx
     outside = 0
     for t in prange(nt):
         g = grid_private[t]
@@ -65,21 +66,31 @@ def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, parti
             by = cubic_weights(fy, wy)
             bz = cubic_weights(fz, wz)
             m = particle_mass[p]
-            c = particle_C[p]
             fdt = 0.0 if has_pins and pin_mask[p] else dt
+            # Node momentum m (v + C (x_i - x_p)) + dt f, built up axis by axis: the affine part of axis 0 is
+            # added once per i, of axis 1 once per j, so the innermost loop does four multiply-adds per node.
+            # Node momentum m (v + C (x_i - x_p)) + dt f, built up axis by axis: the affine part of axis 0 is
+            # added once per i, of axis 1 once per j, so the innermost loop does four multiply-adds per node.
+            p0 = m * particle_v[p, 0] + fdt * particle_force[p, 0]
+            p1 = m * particle_v[p, 1] + fdt * particle_force[p, 1]
+            p2 = m * particle_v[p, 2] + fdt * particle_force[p, 2]
+            c00, c01, c02 = m * particle_C[p, 0, 0], m * particle_C[p, 0, 1], m * particle_C[p, 0, 2]
+            c10, c11, c12 = m * particle_C[p, 1, 0], m * particle_C[p, 1, 1], m * particle_C[p, 1, 2]
+            c20, c21, c22 = m * particle_C[p, 2, 0], m * particle_C[p, 2, 1], m * particle_C[p, 2, 2]
             for i in range(4):
-                dx0 = (bx + i - fx) / inv_dx
+                d0 = (bx + i - fx) * dx
+                q0, q1, q2 = p0 + c00 * d0, p1 + c10 * d0, p2 + c20 * d0
                 for j in range(4):
-                    dx1 = (by + j - fy) / inv_dx
+                    d1 = (by + j - fy) * dx
+                    r0, r1, r2 = q0 + c01 * d1, q1 + c11 * d1, q2 + c21 * d1
                     wij = wx[i] * wy[j]
                     for k in range(4):
-                        dx2 = (bz + k - fz) / inv_dx
-                        wgt = wij * wz[k]
-                        node = g[bx + i, by + j, bz + k]
-                        node[0] += wgt * m
-                        for a in range(3):
-                            mom = m * (particle_v[p, a] + c[a, 0] * dx0 + c[a, 1] * dx1 + c[a, 2] * dx2)
-                            node[1 + a] += wgt * (mom + fdt * particle_force[p, a])
+                        d2 = (bz + k - fz) * dx
+                        w = wij * wz[k]
+                        g[bx + i, by + j, bz + k, 0] += w * m
+                        g[bx + i, by + j, bz + k, 1] += w * (r0 + c02 * d2)
+                        g[bx + i, by + j, bz + k, 2] += w * (r1 + c12 * d2)
+                        g[bx + i, by + j, bz + k, 3] += w * (r2 + c22 * d2)
     for i in prange(box[0], box[1]):
         for j in range(box[2], box[3]):
             for k in range(box[4], box[5]):
@@ -124,60 +135,100 @@ def grid_update(grid, dt, gravity, wind, drag, origin, dx, box, t_new, colliders
 
 @njit(parallel=True, cache=True)
 def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, particle_crack, particle_x,
-        particle_v, particle_C):
+        particle_v, particle_C, chunks):
     """G2P velocity and APIC affine matrix (step 5), pins, particle collisions (step 6), advection; crack-surface
-    particles are left to their own integrator. Returns (max particle speed, number of non-finite particles)."""
+    particles are left to their own integrator. Particles go in `chunks` static chunks, each with its own
+    scratch. Returns (max particle speed, number of non-finite particles)."""
     n = particle_x.shape[0]
     has_pins = pin_mask.shape[0] > 0
     has_crack = particle_crack.shape[0] > 0
-    vmax = 0.0
-    bad = 0
+    dx = 1.0 / inv_dx
     scale = 3.0 * inv_dx * inv_dx  # D_p^-1 for cubic B-splines (Jiang et al. 2015)
-    for p in prange(n):
-        if has_crack and particle_crack[p]:
-            continue
+    chunk_vmax = np.zeros(chunks)
+    chunk_bad = np.zeros(chunks, dtype=np.int64)
+    for t in prange(chunks):
         wx = np.empty(4)
         wy = np.empty(4)
         wz = np.empty(4)
-        v = np.zeros(3)
-        b = np.zeros((3, 3))
+        v = np.empty(3)
         nrm = np.empty(3)
-        fx = (particle_x[p, 0] - origin[0]) * inv_dx
-        fy = (particle_x[p, 1] - origin[1]) * inv_dx
-        fz = (particle_x[p, 2] - origin[2]) * inv_dx
-        bx = cubic_weights(fx, wx)
-        by = cubic_weights(fy, wy)
-        bz = cubic_weights(fz, wz)
-        for i in range(4):
-            dx0 = (bx + i - fx) / inv_dx
-            for j in range(4):
-                dx1 = (by + j - fy) / inv_dx
-                for k in range(4):
-                    dx2 = (bz + k - fz) / inv_dx
-                    wgt = wx[i] * wy[j] * wz[k]
-                    node = grid[bx + i, by + j, bz + k]
-                    for a in range(3):
-                        va = wgt * node[1 + a]
-                        v[a] += va
-                        b[a, 0] += va * dx0
-                        b[a, 1] += va * dx1
-                        b[a, 2] += va * dx2
-        if has_pins and pin_mask[p]:
-            for a in range(3):
-                v[a] = pin_velocity[p, a]
-            b[:, :] = 0.0
-        elif colliders.shape[0]:
-            collide_all(colliders, particle_x[p, 0], particle_x[p, 1], particle_x[p, 2], t_new, v, nrm)
-        for a in range(3):
-            particle_v[p, a] = v[a]
-            particle_x[p, a] += dt * v[a]
-            for c in range(3):
-                particle_C[p, a, c] = b[a, c] * scale
-        if colliders.shape[0] and not (has_pins and pin_mask[p]):
-            push_out(colliders, particle_x[p], t_new, nrm)
-        s = particle_speed(v, particle_x, p)
-        if s < 0.0:
-            bad += 1
-        else:
-            vmax = max(vmax, s)
-    return vmax, bad
+        for p in range(t * n // chunks, (t + 1) * n // chunks):
+            if has_crack and particle_crack[p]:
+                continue
+            fx = (particle_x[p, 0] - origin[0]) * inv_dx
+            fy = (particle_x[p, 1] - origin[1]) * inv_dx
+            fz = (particle_x[p, 2] - origin[2]) * inv_dx
+            bx = cubic_weights(fx, wx)
+            by = cubic_weights(fy, wy)
+            bz = cubic_weights(fz, wz)
+            # The sums over the 64 nodes of w u and w u (x_i - x_p) factor axis by axis (w = wx wy wz, and each
+            # component of x_i - x_p depends on one axis): sum over k first, then j, then i.
+            v0 = v1 = v2 = 0.0
+            b00 = b01 = b02 = b10 = b11 = b12 = b20 = b21 = b22 = 0.0
+            for i in range(4):
+                d0 = (bx + i - fx) * dx
+                t0 = t1 = t2 = 0.0  # sum_jk wy wz u
+                s0 = s1 = s2 = 0.0  # sum_jk wy wz u d1
+                z0 = z1 = z2 = 0.0  # sum_jk wy wz u d2
+                for j in range(4):
+                    d1 = (by + j - fy) * dx
+                    k0 = k1 = k2 = 0.0  # sum_k wz u
+                    e0 = e1 = e2 = 0.0  # sum_k wz u d2
+                    for k in range(4):
+                        d2 = (bz + k - fz) * dx
+                        w = wz[k]
+                        u0 = w * grid[bx + i, by + j, bz + k, 1]
+                        u1 = w * grid[bx + i, by + j, bz + k, 2]
+                        u2 = w * grid[bx + i, by + j, bz + k, 3]
+                        k0 += u0
+                        k1 += u1
+                        k2 += u2
+                        e0 += u0 * d2
+                        e1 += u1 * d2
+                        e2 += u2 * d2
+                    w = wy[j]
+                    t0 += w * k0
+                    t1 += w * k1
+                    t2 += w * k2
+                    s0 += w * d1 * k0
+                    s1 += w * d1 * k1
+                    s2 += w * d1 * k2
+                    z0 += w * e0
+                    z1 += w * e1
+                    z2 += w * e2
+                w = wx[i]
+                v0 += w * t0
+                v1 += w * t1
+                v2 += w * t2
+                b00 += w * d0 * t0
+                b10 += w * d0 * t1
+                b20 += w * d0 * t2
+                b01 += w * s0
+                b11 += w * s1
+                b21 += w * s2
+                b02 += w * z0
+                b12 += w * z1
+                b22 += w * z2
+            pinned = has_pins and pin_mask[p]
+            if pinned:
+                v0, v1, v2 = pin_velocity[p, 0], pin_velocity[p, 1], pin_velocity[p, 2]
+                b00 = b01 = b02 = b10 = b11 = b12 = b20 = b21 = b22 = 0.0
+            elif colliders.shape[0]:
+                v[0], v[1], v[2] = v0, v1, v2
+                collide_all(colliders, particle_x[p, 0], particle_x[p, 1], particle_x[p, 2], t_new, v, nrm)
+                v0, v1, v2 = v[0], v[1], v[2]
+            particle_v[p, 0], particle_v[p, 1], particle_v[p, 2] = v0, v1, v2
+            particle_x[p, 0] += dt * v0
+            particle_x[p, 1] += dt * v1
+            particle_x[p, 2] += dt * v2
+            particle_C[p, 0, 0], particle_C[p, 0, 1], particle_C[p, 0, 2] = b00 * scale, b01 * scale, b02 * scale
+            particle_C[p, 1, 0], particle_C[p, 1, 1], particle_C[p, 1, 2] = b10 * scale, b11 * scale, b12 * scale
+            particle_C[p, 2, 0], particle_C[p, 2, 1], particle_C[p, 2, 2] = b20 * scale, b21 * scale, b22 * scale
+            if colliders.shape[0] and not pinned:
+                push_out(colliders, particle_x[p], t_new, nrm)
+            s = particle_speed(v0, v1, v2, particle_x, p)
+            if s < 0.0:
+                chunk_bad[t] += 1
+            else:
+                chunk_vmax[t] = max(chunk_vmax[t], s)
+    return chunk_vmax.max(), chunk_bad.sum()
