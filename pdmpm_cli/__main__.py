@@ -1,3 +1,4 @@
 from pdmpm_cli.cli.app import main
 
-main()
+if __name__ == "__main__":  # not when multiprocessing's spawn re-imports the main module (Dask workers)
+    main()

@@ -14,7 +14,6 @@ import importlib.util
 import os
 import re
 import time
-import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -191,14 +190,12 @@ def _vtk_source(folder: Path) -> RunSource:
 
 def _pvd_entries(pvd: Path) -> list[tuple[float, int, Path]]:
     """(time, frame index, VTU path) of every frame the collection lists."""
-    try:
-        sets = ET.parse(pvd).getroot().iter("DataSet")
-        entries = [(float(d.get("timestep")), d.get("file")) for d in sets]
-    except (ET.ParseError, TypeError, ValueError) as error:
-        raise InputError(f"{pvd}: not a readable ParaView collection ({error}); re-run the simulation") from error
+    from pdmpm_cli.io.vtk import frame_index, read_pvd
+
+    entries = read_pvd(pvd)
     if not entries:
         raise InputError(f"{pvd}: lists no frames; {_RUN_FIRST.format(folder=pvd.parents[1])}")
-    return [(t, int(re.search(r"(\d+)\.vtu$", name).group(1)), pvd.parent / name) for t, name in entries]
+    return [(t, frame_index(name), pvd.parent / name) for t, name in entries]
 
 
 def _ply_series(meshes: Path, index: int) -> list[tuple[str, Path]]:

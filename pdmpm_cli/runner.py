@@ -1,5 +1,7 @@
-"""Scene file -> Plan -> Model/State -> frames on disk. The CLI's `run` and `validate` call this."""
+"""Scene file -> Plan -> Model/State -> frames on disk. The CLI's `run`, `validate` and `sweep` call this."""
 
+import dataclasses
+import functools
 import json
 import math
 from dataclasses import dataclass
@@ -8,12 +10,14 @@ from typing import Protocol
 
 import numpy as np
 
+from pdmpm_cli import checkpoint
 from pdmpm_cli.engine.materials.plastic import particle_plastic_strain
 from pdmpm_cli.engine.discretize import Discretization, discretize
 from pdmpm_cli.engine.embedding import mesh_positions
 from pdmpm_cli.engine.model import Model, State
 from pdmpm_cli.engine.solver import Solver
 from pdmpm_cli.errors import InputError
+from pdmpm_cli.io.lock import LOCK_NAME, OutputLock
 from pdmpm_cli.plan import Plan, make_plan
 from pdmpm_cli.scene.loader import load_scene
 from pdmpm_cli.scene.schema import Scene
@@ -29,13 +33,31 @@ class Prepared:
     disc: Discretization
     model: Model
     plan: Plan
+    overrides: tuple[str, ...] = ()  # the --set items and variant it was loaded with (checkpoints record them)
+    variant: str | None = None
 
 
 def prepare(path, overrides=(), variant: str | None = None) -> Prepared:
     """Load and validate the scene file (with one of its variants), discretise it, and make the Plan."""
     path = Path(path)
     scene, text = load_scene(path, Scene, list(overrides), variant)
-    return prepare_scene(scene, path, text)
+    return dataclasses.replace(prepare_scene(scene, path, text), overrides=tuple(overrides), variant=variant)
+
+
+def prepare_resume(out: Path, scene=None, overrides=(), variant: str | None = None
+                   ) -> tuple[Prepared, checkpoint.Checkpoint]:
+    """The run in `out` and its newest checkpoint. Without `scene`, the scene file, overrides and variant the run
+    was started with; with one, those given. Either way the scene must still be the one the run started with."""
+    if not checkpoint.files(out) and run_complete(out):
+        raise InputError(f"{out}: the run is complete (its checkpoints are removed at the end); nothing to resume")
+    ckpt = checkpoint.latest(out)
+    if scene is None:
+        scene, overrides, variant = ckpt.source
+        if not scene.is_file():
+            raise InputError(f"{out}: the run's scene file {scene} is gone; give it: pdmpm run SCENE --resume {out}")
+    prep = prepare(scene, overrides, variant)
+    checkpoint.check(ckpt, prep)
+    return prep, ckpt
 
 
 def prepare_scene(scene: Scene, path: Path, text: str = "") -> Prepared:
@@ -45,10 +67,21 @@ def prepare_scene(scene: Scene, path: Path, text: str = "") -> Prepared:
     return Prepared(Path(path), scene, text, disc, model, make_plan(scene, disc, model))
 
 
+def run_complete(out: Path) -> bool:
+    """Whether `out` holds a run.h5 with every frame of its plan."""
+    from pdmpm_cli.io.hdf5 import read_run
+
+    try:
+        run = read_run(out / "run.h5")
+    except InputError:
+        return False
+    return len(run) == run.plan["frames"] + 1
+
+
 class Reporter(Protocol):
     """Receives progress; the CLI implements it with rich. Library code prints nothing."""
 
-    def start(self, plan: Plan) -> None: ...
+    def start(self, plan: Plan, frame: int) -> None: ...  # frame: where the run starts (a checkpoint's on resume)
     def substep(self, state: State, dt: float) -> None: ...
     def frame(self, index: int, state: State) -> None: ...
 
@@ -87,53 +120,82 @@ def frame_fields(state: State, names, model: Model | None = None, meshes=()) -> 
 
 def prepare_output_dir(out: Path, overwrite: bool):
     """Refuse to overwrite an earlier run unless asked: nothing already written is lost silently."""
-    if out.exists() and any(out.iterdir()):
+    if any(p.name != LOCK_NAME for p in out.iterdir()):
         if not overwrite:
-            raise InputError(f"{out}: output folder is not empty; pass --overwrite to replace it, or choose "
-                             f"another folder with --out")
+            resumable = " (or --resume it from its checkpoint)" if (out / checkpoint.FOLDER).is_dir() else ""
+            raise InputError(f"{out}: output folder is not empty; pass --overwrite to replace it{resumable}, or "
+                             f"choose another folder with --out")
         for name in ("run.h5",):
             (out / name).unlink(missing_ok=True)
-        for sub in ("vtk", "meshes"):
+        for sub in ("vtk", "meshes", checkpoint.FOLDER):
             if (out / sub).is_dir():
                 for f in (out / sub).iterdir():
                     f.unlink()
-    out.mkdir(parents=True, exist_ok=True)
 
 
-def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwrite: bool = False) -> State:
-    """Run the whole scene, writing frame 0 (the initial state) and every frame after it."""
+def _writers(prep: Prepared, out: Path, static: dict, keep: int) -> list:
+    """The scene's exporters; with `keep` > 0 they continue the outputs in `out` after its first `keep` frames."""
     from pdmpm_cli.io.hdf5 import Hdf5RunWriter
     from pdmpm_cli.io.ply import MeshSeriesWriter
-    from pdmpm_cli.io.sink import FrameSink
     from pdmpm_cli.io.vtk import VtkSeriesWriter
 
-    scene, plan, model = prep.scene, prep.plan, prep.model
-    prepare_output_dir(out, overwrite)
-    state = State.allocate(model, prep.disc, plan.fields)
-    solver = Solver(model, plan)
-    solver.start(state)
-    meshes = prep.disc.meshes
-    static = static_fields(model, meshes)
+    scene, meshes = prep.scene, prep.disc.meshes
     writers = []
-    if scene.output.hdf5:
+    if scene.output.hdf5 and keep:
+        writers.append(Hdf5RunWriter.reopen(out / "run.h5", keep))
+    elif scene.output.hdf5:
         # The plan carries the scene as validated (with --set and --variant applied) for readers such as render.
-        record = {**plan.to_dict(), "scene": scene.model_dump(mode="json")}
+        record = {**prep.plan.to_dict(), "scene": scene.model_dump(mode="json")}
         writers.append(Hdf5RunWriter(out / "run.h5", scene_text=prep.text, plan=json.loads(json.dumps(
             record, default=_jsonable)), static=static, compression=scene.output.compression))
     if scene.output.vtk:
-        writers.append(VtkSeriesWriter(out / "vtk", static=static))
+        writers.append(VtkSeriesWriter.reopen(out / "vtk", static=static, frames=keep) if keep else
+                       VtkSeriesWriter(out / "vtk", static=static))
     if meshes and scene.output.meshes:
-        writers.append(MeshSeriesWriter(out / "meshes", meshes))
-    if reporter:
-        reporter.start(plan)
-    on_substep = reporter.substep if reporter else None
-    with FrameSink(writers) as sink:
-        sink.submit(0, 0.0, frame_fields(state, scene.output.fields, model, meshes))
-        for f in range(1, plan.frames + 1):
-            solver.advance(state, f * plan.frame_dt, on_substep)
-            sink.submit(f, state.time, frame_fields(state, scene.output.fields, model, meshes))
-            if reporter:
-                reporter.frame(f, state)
+        writers.append(MeshSeriesWriter.reopen(out / "meshes", meshes, keep) if keep else
+                       MeshSeriesWriter(out / "meshes", meshes))
+    return writers
+
+
+def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwrite: bool = False,
+             resume: checkpoint.Checkpoint | None = None) -> State:
+    """Run the whole scene, writing frame 0 (the initial state) and every frame after it, with a checkpoint
+    every `output.checkpoint_every` frames. With `resume` (from `prepare_resume`), continue from that checkpoint:
+    the frames after it are dropped from the outputs and computed again. One run at a time per folder."""
+    from pdmpm_cli.io.atomic import remove_temporaries
+    from pdmpm_cli.io.sink import FrameSink
+
+    scene, plan, model = prep.scene, prep.plan, prep.model
+    with OutputLock(out):
+        if resume is None:
+            prepare_output_dir(out, overwrite)
+        for folder in (out, out / "vtk", out / "meshes", out / checkpoint.FOLDER):
+            remove_temporaries(folder)
+        state = State.allocate(model, prep.disc, plan.fields)
+        solver = Solver(model, plan)
+        solver.start(state)
+        first = 0
+        if resume is not None:
+            checkpoint.restore(resume, state, solver)
+            first = resume.frame
+        meshes = prep.disc.meshes
+        writers = _writers(prep, out, static_fields(model, meshes), first + 1 if resume else 0)
+        every, head = scene.output.checkpoint_every, checkpoint.header(prep)
+        if reporter:
+            reporter.start(plan, first)
+        on_substep = reporter.substep if reporter else None
+        with FrameSink(writers) as sink:
+            if resume is None:
+                sink.submit(0, 0.0, frame_fields(state, scene.output.fields, model, meshes))
+            for f in range(first + 1, plan.frames + 1):
+                solver.advance(state, f * plan.frame_dt, on_substep)
+                sink.submit(f, state.time, frame_fields(state, scene.output.fields, model, meshes))
+                if every and f % every == 0 and f < plan.frames:
+                    sink.call(f"checkpoint at frame {f}",
+                              functools.partial(checkpoint.save, out, f, checkpoint.snapshot(state, solver), head))
+                if reporter:
+                    reporter.frame(f, state)
+        checkpoint.remove(out)
     return state
 
 

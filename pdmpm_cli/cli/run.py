@@ -8,7 +8,7 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from pdmpm_cli.cli.options import SceneArg, SetOpt, VariantOpt
+from pdmpm_cli.cli.options import SetOpt, VariantOpt
 
 
 class RichReporter:
@@ -20,55 +20,86 @@ class RichReporter:
             TextColumn("{task.fields[info]}"), TimeElapsedColumn(), TimeRemainingColumn(),
             console=console, transient=False,
         )
-        self.substeps = 0
         self.last = 0.0
 
-    def start(self, plan):
-        self.task = self.progress.add_task("frames", total=plan.frames, info="")
+    def start(self, plan, frame):
+        self.task = self.progress.add_task("frames", total=plan.frames, completed=frame, info="")
         self.progress.start()
 
     def substep(self, state, dt):
-        self.substeps += 1
         now = time.monotonic()
         if now - self.last > 0.25:
             self.last = now
-            self.progress.update(self.task, info=f"t={state.time:.4g}s steps={self.substeps} dt={dt:.2e}s")
+            self.progress.update(self.task, info=f"t={state.time:.4g}s steps={state.step} dt={dt:.2e}s")
 
     def frame(self, index, state):
-        self.progress.update(self.task, completed=index,
-                             info=f"t={state.time:.4g}s steps={self.substeps}")
+        self.progress.update(self.task, completed=index, info=f"t={state.time:.4g}s steps={state.step}")
 
     def stop(self):
         self.progress.stop()
 
 
 def run(
-    scene: SceneArg,
+    scene: Annotated[Path | None, typer.Argument(
+        help="Scene YAML file (with --resume: optional, the run's own by default).", show_default=False)] = None,
     set_: SetOpt = [],
     variant: VariantOpt = None,
     out: Annotated[Path | None, typer.Option(
         "--out", "-o", help="Output folder (default outputs/<scene file stem>[-<variant>]).")] = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the outputs of an earlier run.")] = False,
+    resume: Annotated[Path | None, typer.Option(
+        "--resume", help="Continue the run in this output folder from its newest checkpoint. Without SCENE it uses "
+        "the scene file, --set and --variant the run was started with; with them, they must give the same scene.",
+        show_default=False)] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ):
-    """Simulate SCENE and write run.h5 (all frames) and vtk/particles.pvd (ParaView) to the output folder."""
-    from pdmpm_cli.runner import prepare, simulate
+    """Simulate SCENE and write run.h5 (all frames) and vtk/particles.pvd (ParaView) to the output folder;
+    --resume OUTDIR continues a killed run from its newest checkpoint."""
+    import numba
+
+    from pdmpm_cli.errors import InputError
+    from pdmpm_cli.runner import prepare, prepare_resume, simulate
 
     console = Console(stderr=True, highlight=False, soft_wrap=True)
-    prep = prepare(scene, set_, variant)
+    ckpt = None
+    if resume is not None:
+        if overwrite or (out is not None and out.resolve() != resume.resolve()):
+            raise InputError("--resume continues the run in its own folder: leave out --overwrite and --out")
+        if scene is None and (set_ or variant):
+            raise InputError("--set and --variant apply to a SCENE: with --resume give the scene file too, or "
+                             "leave them out to use the run's own")
+        prep, ckpt = prepare_resume(resume, scene, set_, variant)
+        out = resume
+    elif scene is None:
+        raise InputError("missing SCENE: give a scene file (pdmpm run scene.yaml), or --resume OUTDIR")
+    else:
+        prep = prepare(scene, set_, variant)
+        out = out or Path("outputs") / (scene.stem if variant is None else f"{scene.stem}-{variant}")
     for w in prep.plan.warnings():
         console.print(f"[yellow]warning:[/] {w}")
-    out = out or Path("outputs") / (scene.stem if variant is None else f"{scene.stem}-{variant}")
     plan = prep.plan
     console.print(f"{prep.scene.name}: {plan.particles} particles, {plan.bonds} bonds, {plan.frames} frames, "
                   f"dt <= {plan.dt_max:.3g} s -> {out}")
+    if ckpt is not None:
+        console.print(f"resuming from frame {ckpt.frame} (t = {ckpt.attrs['time']:.6g} s, "
+                      f"step {ckpt.attrs['step']}); frames after it are written again")
+        if ckpt.attrs["threads"] != numba.get_num_threads():
+            console.print(f"[yellow]warning:[/] the run started with {ckpt.attrs['threads']} Numba threads, this one "
+                          f"has {numba.get_num_threads()}: the frames will differ from an uninterrupted run in the "
+                          f"last bits (set NUMBA_NUM_THREADS={ckpt.attrs['threads']} for identical ones)")
     reporter = None if quiet else RichReporter(console)
+    first_step = ckpt.attrs["step"] if ckpt else 0
     t0 = time.perf_counter()
     try:
-        state = simulate(prep, out, reporter, overwrite=overwrite)
+        state = simulate(prep, out, reporter, overwrite=overwrite, resume=ckpt)
+    except KeyboardInterrupt:
+        if (out / "checkpoints").is_dir():
+            console.print(f"continue it with: pdmpm run --resume {out}")
+        raise
     finally:
         if reporter:
             reporter.stop()
     wall = time.perf_counter() - t0
-    console.print(f"done: {state.step} steps in {wall:.1f} s "
-                  f"({plan.particles * state.step / wall / 1e6:.2f} M particle-steps/s); outputs in {out}")
+    steps = state.step - first_step
+    console.print(f"done: {steps} steps in {wall:.1f} s "
+                  f"({plan.particles * steps / wall / 1e6:.2f} M particle-steps/s); outputs in {out}")

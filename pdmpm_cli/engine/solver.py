@@ -18,6 +18,11 @@ from pdmpm_cli.plan import Plan
 RUNAWAY_FACTOR = 10.0  # kinetic energy above this multiple of the energy budget is a blow-up
 
 
+def kinetic_energy(particle_mass: np.ndarray, particle_v: np.ndarray) -> float:
+    """1/2 sum_p m_p |v_p|^2 [J]."""
+    return 0.5 * float(np.dot(particle_mass, np.einsum("ij,ij->i", particle_v, particle_v)))
+
+
 class Solver:
     """Runs the Plan's phases on a State; one method per phase, each one jitted kernel."""
 
@@ -155,8 +160,7 @@ class Solver:
 
     # ---- diagnostics
     def kinetic_energy(self, state: State) -> float:
-        return 0.5 * float(np.dot(self.model.particle_mass, np.einsum("ij,ij->i", state.particle_v,
-                                                                      state.particle_v)))
+        return kinetic_energy(self.model.particle_mass, state.particle_v)
 
     def angular_momentum(self, state: State, about) -> np.ndarray:
         """Total angular momentum [kg m^2/s]: particles plus the APIC affine part m_p (dx^2/3) eps_ijk C_kj,

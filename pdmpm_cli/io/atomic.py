@@ -56,3 +56,18 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` atomically."""
     atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def fsync_file(path: str | os.PathLike[str]) -> None:
+    """Push a file that another handle writes down to the disk (an fsync covers every handle of the file)."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def remove_temporaries(directory: str | os.PathLike[str]) -> None:
+    """Delete the temporary files of writes a killed process left unfinished in ``directory``."""
+    for tmp in Path(directory).glob(".*.tmp-*"):
+        tmp.unlink(missing_ok=True)

@@ -40,7 +40,8 @@ leaves its completed frames readable. Such a file (and one whose run is still go
 plain read-only open ("file is already open for write"); open it with
 ``h5py.File(path, "r", swmr=True)``, as ``read_run`` does. Frames are flushed to the OS, not
 fsynced: a power loss may still lose the most recent frames. Files use the HDF5 1.10 format
-(readable by HDF5 >= 1.10).
+(readable by HDF5 >= 1.10). ``Hdf5RunWriter.reopen`` continues such a file after a given frame
+(``pdmpm run --resume``).
 """
 
 from __future__ import annotations
@@ -57,6 +58,7 @@ import numpy as np
 
 from pdmpm_cli import __version__
 from pdmpm_cli.errors import InputError
+from pdmpm_cli.io.atomic import atomic_path
 
 FORMAT = "pdmpm-run"
 FORMAT_VERSION = 1
@@ -124,6 +126,41 @@ class Hdf5RunWriter:
         # Closed again right away: until the first frame the file is a clean, readable run with 0 frames.
         with h5py.File(self.path, "w", libver=_LIBVER) as f:
             self._write_header(f, scene_text, plan, static)
+
+    @classmethod
+    def reopen(cls, path: str | os.PathLike[str], frames: int) -> Hdf5RunWriter:
+        """Continue the run file at ``path`` after its first ``frames`` frames; later frames are dropped.
+
+        The kept part is copied (chunk by chunk, without recompressing) to a new file that atomically
+        replaces the old one: a file left by a killed writer is still flagged as open for writing, and only
+        a fresh file can be reopened for appending.
+        """
+        path = Path(path)
+        run = read_run(path)
+        if len(run) < frames:
+            raise InputError(f"{path}: holds {len(run)} complete frames, but the checkpoint needs {frames}; "
+                             f"{_CORRUPT_HINT}")
+        with _open(path) as src, atomic_path(path) as tmp:
+            try:
+                with h5py.File(tmp, "w", libver=_LIBVER) as dst:
+                    dst.attrs.update(src.attrs)
+                    dst.attrs["frames_complete"] = np.int64(frames)
+                    for name in src:
+                        src.copy(src[name], dst, name)
+                    for dataset in dst["frames"].values():
+                        dataset.resize(frames, axis=0)
+            except (OSError, KeyError, ValueError) as error:
+                raise _corrupt(path, error) from error
+        writer = cls.__new__(cls)
+        writer.path = path
+        writer._closed = False
+        writer._file = h5py.File(path, "r+", libver=_LIBVER)
+        group = writer._file["frames"]
+        writer._frames = {name: group[name] for name in run.field_names}
+        writer._shapes = {name: dataset.shape[1:] for name, dataset in writer._frames.items()}
+        writer._n_frames = frames
+        writer._file.swmr_mode = True
+        return writer
 
     def _write_header(self, f: h5py.File, scene_text: str, plan: dict, static: dict[str, np.ndarray]) -> None:
         f.attrs.update(

@@ -70,6 +70,17 @@ class MeshSeriesWriter:
         self._starts = np.cumsum([0] + [len(m.vertices) for m in meshes])
         self.directory.mkdir(parents=True, exist_ok=True)
 
+    @classmethod
+    def reopen(cls, directory: str | os.PathLike[str], meshes, frames: int) -> MeshSeriesWriter:
+        """Continue the series in ``directory`` after its first ``frames`` frames; later files are deleted."""
+        from pdmpm_cli.io.vtk import frame_index
+
+        writer = cls(directory, meshes)
+        for ply in writer.directory.glob("*.ply"):
+            if frame_index(ply.name) >= frames:
+                ply.unlink()
+        return writer
+
     def write_frame(self, index: int, time: float, fields: dict[str, np.ndarray]) -> None:
         vertices = fields[VERTEX_FIELD]
         for (name, triangles), a, b in zip(self._meshes, self._starts[:-1], self._starts[1:]):

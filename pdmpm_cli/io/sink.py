@@ -2,15 +2,16 @@
 
 The simulation hands each frame to :meth:`FrameSink.submit`, which copies the arrays (the solver
 keeps mutating its own) and queues them; at most two frames wait, so a slow disk throttles the
-simulation instead of filling memory. A writer failure is raised in the simulation thread on
-the next ``submit`` or on ``close``.
+simulation instead of filling memory. :meth:`FrameSink.call` queues other work (a checkpoint) in
+the same order. A writer failure is raised in the simulation thread on the next ``submit`` or on
+``close``.
 """
 
 from __future__ import annotations
 
 import queue
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Protocol
 
 import numpy as np
@@ -43,7 +44,7 @@ class FrameSink:
 
     def __init__(self, writers: Sequence[FrameWriter]) -> None:
         self._writers = list(writers)
-        self._queue: queue.Queue[tuple[int, float, dict[str, np.ndarray]] | None] = queue.Queue(_QUEUE_SIZE)
+        self._queue: queue.Queue[tuple | None] = queue.Queue(_QUEUE_SIZE)
         self._error: FrameWriteError | None = None
         self._error_raised = False
         self._closed = False
@@ -54,6 +55,14 @@ class FrameSink:
         while (item := self._queue.get()) is not _STOP:
             if self._error is not None:
                 continue  # after a failure, later frames are dropped so outputs stay in order
+            if len(item) == 2:
+                what, job = item
+                try:
+                    job()
+                except BaseException as exc:
+                    self._error = FrameWriteError(f"{what} failed: {type(exc).__name__}: {exc}")
+                    self._error.__cause__ = exc
+                continue
             index, time, fields = item
             for writer in self._writers:
                 try:
@@ -78,6 +87,14 @@ class FrameSink:
         self._raise_pending()
         copies = {name: np.array(value, copy=True) for name, value in fields.items()}
         self._queue.put((index, float(time), copies))
+
+    def call(self, what: str, job: Callable[[], None]) -> None:
+        """Run ``job`` on the writer thread once every frame submitted before it is written (a checkpoint
+        must not name a frame that is not on disk yet); a failure is reported as ``what`` failed."""
+        if self._closed:
+            raise ValueError("FrameSink is closed")
+        self._raise_pending()
+        self._queue.put((what, job))
 
     def close(self) -> None:
         """Write the queued frames, close every writer (even after a failure), join the thread."""

@@ -10,12 +10,15 @@ collection that lists exactly the frames written.
 from __future__ import annotations
 
 import os
+import re
+import xml.etree.ElementTree as ET
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
 import meshio
 import numpy as np
 
+from pdmpm_cli.errors import InputError
 from pdmpm_cli.io.atomic import atomic_path, atomic_write_text
 
 POSITION_FIELD = "particle_x"
@@ -53,6 +56,20 @@ def _pvd_text(entries: list[tuple[float, str]]) -> str:
     )
 
 
+def read_pvd(path: Path) -> list[tuple[float, str]]:
+    """(time, VTU file name) of every frame a collection lists; InputError naming the file if unreadable."""
+    try:
+        sets = ET.parse(path).getroot().iter("DataSet")
+        return [(float(d.get("timestep")), d.get("file")) for d in sets]
+    except (ET.ParseError, OSError, TypeError, ValueError) as error:
+        raise InputError(f"{path}: not a readable ParaView collection ({error}); re-run the simulation") from error
+
+
+def frame_index(name: str) -> int:
+    """The frame number in a file name such as frame_00012.vtu or cloth_00012.ply."""
+    return int(re.search(r"(\d+)\.\w+$", name).group(1))
+
+
 class VtkSeriesWriter:
     """Writes ``frame_NNNNN.vtu`` per frame and keeps ``particles.pvd`` listing them."""
 
@@ -75,6 +92,24 @@ class VtkSeriesWriter:
         self._last_index = -1
         self._closed = False
         self.directory.mkdir(parents=True, exist_ok=True)
+
+    @classmethod
+    def reopen(cls, directory: str | os.PathLike[str], *, static: dict[str, np.ndarray], frames: int
+               ) -> VtkSeriesWriter:
+        """Continue the series in ``directory`` after its first ``frames`` frames; later frames are deleted."""
+        writer = cls(directory, static=static)
+        entries = read_pvd(writer.path)
+        kept = [(time, name) for time, name in entries if frame_index(name) < frames]
+        if len(kept) < frames:
+            raise InputError(f"{writer.path}: lists {len(kept)} of the {frames} frames the checkpoint needs; "
+                             f"start the run again with --overwrite")
+        atomic_write_text(writer.path, _pvd_text(kept))
+        for vtu in writer.directory.glob("frame_*.vtu"):
+            if frame_index(vtu.name) >= frames:
+                vtu.unlink()
+        writer._entries = kept
+        writer._last_index = frames - 1
+        return writer
 
     def write_frame(self, index: int, time: float, fields: dict[str, np.ndarray]) -> None:
         """Write frame ``index`` (greater than the previous one) and update the collection."""

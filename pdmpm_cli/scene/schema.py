@@ -430,6 +430,10 @@ class Output(Strict):
         description="Per-frame fields besides particle_x (always written).",
     )
     compression: Literal["none", "lzf", "gzip"] = Field("lzf", description="HDF5 dataset compression.")
+    checkpoint_every: int = Field(
+        10, ge=0, description="Save the complete simulation state every this many frames (OUTDIR/checkpoints, the "
+        "two newest kept, removed when the run finishes) so `pdmpm run --resume OUTDIR` continues a killed run; "
+        "0: never [frames].")
 
 
 class Camera(Strict):

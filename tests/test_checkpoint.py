@@ -1,0 +1,170 @@
+"""Checkpoints and `pdmpm run --resume`: a run killed mid-frame resumes to the frames of an uninterrupted run,
+bit for bit; a changed scene, a corrupt checkpoint or run file, and a second run into the folder are refused."""
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numba
+import numpy as np
+import pytest
+
+from pdmpm_cli.checkpoint import latest
+from pdmpm_cli.engine.solver import Solver
+from pdmpm_cli.io.hdf5 import read_run
+from pdmpm_cli.io.lock import LOCK_NAME, OutputLock
+from pdmpm_cli.io.vtk import read_pvd
+from pdmpm_cli.runner import prepare, simulate
+from tests.test_cli import SMALL
+
+ROOT = Path(__file__).resolve().parents[1]
+LONG = ["simulation.duration=0.75", "simulation.fps=40", "output.checkpoint_every=3"]  # 30 frames, 22 steps each
+
+
+def cli(monkeypatch, capsys, *args) -> tuple[int, str]:
+    """Run the pdmpm CLI in this process; (exit code, stderr)."""
+    from pdmpm_cli.cli.app import main
+
+    monkeypatch.setattr(sys, "argv", ["pdmpm", *map(str, args)])
+    with pytest.raises(SystemExit) as exc:
+        main()
+    return exc.value.code or 0, capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("scene") / "small.yaml"
+    path.write_text(SMALL)
+    return path
+
+
+@pytest.fixture(scope="module")
+def reference(scene, tmp_path_factory) -> Path:
+    """The uninterrupted run, in this process."""
+    out = tmp_path_factory.mktemp("reference")
+    simulate(prepare(scene, LONG), out, overwrite=True)
+    return out
+
+
+@pytest.fixture(scope="module")
+def interrupted(scene, tmp_path_factory) -> Path:
+    """A run stopped after frame 8 (checkpoints at frames 3 and 6), in this process: a template to copy."""
+    out = tmp_path_factory.mktemp("interrupted") / "run"
+    advance = Solver.advance
+
+    def stop(self, state, t_end, on_substep=None):
+        if t_end > 8.5 * self.plan.frame_dt:
+            raise KeyboardInterrupt
+        advance(self, state, t_end, on_substep)
+
+    Solver.advance = stop
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            simulate(prepare(scene, LONG), out, overwrite=True)
+    finally:
+        Solver.advance = advance
+    return out
+
+
+def copy_of(run: Path, tmp_path: Path) -> Path:
+    return Path(shutil.copytree(run, tmp_path / "run"))
+
+
+def assert_same_frames(a: Path, b: Path):
+    ra, rb = read_run(a / "run.h5"), read_run(b / "run.h5")
+    assert len(ra) == len(rb) == 31 and ra.field_names == rb.field_names
+    assert np.array_equal(ra.times, rb.times)
+    for name in ra.field_names:
+        assert np.array_equal(ra.field(name), rb.field(name)), name
+    assert read_pvd(a / "vtk" / "particles.pvd") == read_pvd(b / "vtk" / "particles.pvd")
+    assert (a / "vtk" / "frame_00030.vtu").read_bytes() == (b / "vtk" / "frame_00030.vtu").read_bytes()
+
+
+def test_sigkill_mid_frame_then_resume_matches_uninterrupted_run(scene, reference, tmp_path):
+    out = tmp_path / "killed"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
+               NUMBA_NUM_THREADS=str(numba.get_num_threads()))  # the reference's thread count: identical sums
+    sets = [a for item in LONG for a in ("--set", item)]
+    proc = subprocess.Popen([sys.executable, "-m", "pdmpm_cli", "run", scene, "--out", out, "--quiet", *sets],
+                            cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline and proc.poll() is None:
+            if (out / "checkpoints" / "frame_00006.h5").exists():
+                break
+            time.sleep(0.005)
+        assert proc.poll() is None, f"the run ended before it could be killed: {proc.stderr.read()}"
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.wait()
+    # everything written before the kill is readable, and no file is corrupt
+    frames = len(read_run(out / "run.h5"))
+    assert 7 <= frames < 31
+    assert [name for _, name in read_pvd(out / "vtk" / "particles.pvd")] == [
+        f"frame_{i:05d}.vtu" for i in range(len(read_pvd(out / "vtk" / "particles.pvd")))]
+    assert all((out / "vtk" / name).is_file() for _, name in read_pvd(out / "vtk" / "particles.pvd"))
+    assert latest(out).frame in (6, 9)
+    assert (out / LOCK_NAME).exists()  # left by the killed run: it must not block the resume
+    r = subprocess.run([sys.executable, "-m", "pdmpm_cli", "run", "--resume", out, "--quiet"], cwd=ROOT, env=env,
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "resuming from frame 6" in r.stderr or "resuming from frame 9" in r.stderr
+    assert_same_frames(reference, out)
+    assert sorted(p.name for p in out.iterdir()) == ["run.h5", "vtk"]  # no checkpoints or lock left
+
+
+def test_resume_with_the_scene_given_matches(scene, interrupted, reference, tmp_path, monkeypatch, capsys):
+    """The scene named again, with the same values; a new checkpoint interval is allowed."""
+    out = copy_of(interrupted, tmp_path)
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["frame_00003.h5", "frame_00006.h5"]
+    assert len(read_run(out / "run.h5")) == 9
+    sets = [a for item in [*LONG[:2], "output.checkpoint_every=4"] for a in ("--set", item)]
+    code, err = cli(monkeypatch, capsys, "run", scene, "--resume", out, "--quiet", *sets)
+    assert code == 0, err
+    assert "resuming from frame 6 (t = 0.15 s, step 132)" in err
+    assert_same_frames(reference, out)
+    code, err = cli(monkeypatch, capsys, "run", "--resume", out)
+    assert code == 2 and "the run is complete" in err
+
+
+def test_resume_refuses_a_changed_scene(interrupted, tmp_path, monkeypatch, capsys):
+    out = copy_of(interrupted, tmp_path)
+    changed = tmp_path / "changed.yaml"
+    changed.write_text(SMALL.replace("mu: 1e4", "mu: 2e4"))
+    code, err = cli(monkeypatch, capsys, "run", changed, "--resume", out, *(a for s in LONG for a in ("--set", s)))
+    assert code == 2
+    assert "the scene differs from the one the run" in err and "bodies.0.material.mu: 10000.0 -> 20000.0" in err
+    code, err = cli(monkeypatch, capsys, "run", changed, "--resume", out, "--overwrite")
+    assert code == 2 and "leave out --overwrite and --out" in err
+
+
+def test_corrupt_checkpoint_and_run_file_exit_2(interrupted, tmp_path, monkeypatch, capsys):
+    out = copy_of(interrupted, tmp_path)
+    newest = out / "checkpoints" / "frame_00006.h5"
+    with open(newest, "r+b") as f:
+        f.truncate(newest.stat().st_size // 2)
+    code, err = cli(monkeypatch, capsys, "run", "--resume", out)
+    assert code == 2 and "frame_00006.h5: cannot read the checkpoint" in err
+    assert "delete it to resume from frame_00003.h5" in err and "Traceback" not in err
+    newest.unlink()
+    run_h5 = out / "run.h5"
+    with open(run_h5, "r+b") as f:
+        f.truncate(run_h5.stat().st_size // 3)
+    code, err = cli(monkeypatch, capsys, "run", "--resume", out)
+    assert code == 2 and "run.h5" in err and "truncated or corrupt" in err
+    code, err = cli(monkeypatch, capsys, "render", out, "--no-video")
+    assert code == 2 and "run.h5" in err and "truncated or corrupt" in err
+
+
+def test_second_run_into_a_folder_in_use_is_refused(scene, tmp_path, monkeypatch, capsys):
+    out = tmp_path / "busy"
+    with OutputLock(out):
+        code, err = cli(monkeypatch, capsys, "run", scene, "--out", out, "--quiet")
+        assert code == 2 and "another pdmpm run is writing to this folder (pid" in err
+    assert not (out / LOCK_NAME).exists()
+    with OutputLock(out):  # released: it can be taken again
+        pass
