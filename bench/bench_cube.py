@@ -40,18 +40,19 @@ def cube_scene(n_target: int) -> Scene:
     })
 
 
-def bench(n_target: int, steps: int) -> dict:
+def bench(n_target: int, steps: int, clock=time.perf_counter) -> dict:
     prep = prepare_scene(cube_scene(n_target), "bench.yaml")
     state = State.allocate(prep.model, prep.disc, prep.plan.fields)
     solver = Solver(prep.model, prep.plan)
+    solver.clock = clock
     dt = prep.plan.dt_max
     for _ in range(2):  # compile (or load the cache) and warm up
         solver.substep(state, dt)
     solver.phase_time.clear()
-    t0 = time.perf_counter()
+    t0 = clock()
     for _ in range(steps):
         solver.substep(state, dt)
-    wall = time.perf_counter() - t0
+    wall = clock() - t0
     n, nb = prep.plan.particles, prep.plan.bonds
     bond_s = (solver.phase_time["fbar"] + solver.phase_time["bonds:elastic"]) / steps
     return {
@@ -75,10 +76,13 @@ def main():
     ap.add_argument("--sizes", type=int, nargs="+", default=[32_000, 128_000, 512_000])
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--taichi", action="store_true", help="also time bench/taichi_cube.py (needs taichi)")
+    ap.add_argument("--cpu-time", action="store_true",
+                    help="time in process CPU seconds (all threads) instead of wall seconds: steadier on a busy "
+                         "machine; with NUMBA_NUM_THREADS=1 it is the single-core cost")
     args = ap.parse_args()
-    rows = [bench(n, args.steps) for n in args.sizes]
+    rows = [bench(n, args.steps, time.process_time if args.cpu_time else time.perf_counter) for n in args.sizes]
     print(f"machine: {platform.processor() or platform.machine()}, {numba.get_num_threads()} threads, "
-          f"numba {numba.__version__}, float64")
+          f"numba {numba.__version__}, float64, {'CPU' if args.cpu_time else 'wall'} time")
     phases = list(rows[0]["phases"])
     print("| particles | bonds/particle | step [ms] | particle-steps/s | ns per particle-step | bond-updates/s "
           "(step) | bond pass (fbar + forces) | " + " | ".join(f"{p} [ms]" for p in phases)

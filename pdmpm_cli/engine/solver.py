@@ -33,7 +33,8 @@ class Solver:
         self.crack_vmax = 0.0  # max speed of the crack particles, set before g2p each step
         self.energy_budget = 0.0
         self.energy_prev = 0.0  # kinetic + strain energy at the previous frame [J]
-        self.phase_time = defaultdict(float)  # wall seconds spent in each phase, for benchmarks
+        self.phase_time = defaultdict(float)  # seconds spent in each phase, for benchmarks
+        self.clock = time.perf_counter  # the phase timer (benchmarks on a busy machine use process time)
         self.yield_residual = -1.0  # largest f / psi_p after any return map so far (0: exactly on the surface)
         self.bonds_cut = 0  # bonds removed by fracture planes so far
         kinds = [b.model for b in plan.bodies]
@@ -138,13 +139,13 @@ class Solver:
     def substep(self, state: State, dt: float):
         """One explicit step: the Plan's phases in order, each timed."""
         for phase in self.plan.phases:
-            t0 = time.perf_counter()
+            t0 = self.clock()
             stage, _, kind = phase.partition(":")
             if kind:
                 self.material_phase(state, stage, kind, dt)
             else:
                 getattr(self, phase)(state, dt)
-            self.phase_time[phase] += time.perf_counter() - t0
+            self.phase_time[phase] += self.clock() - t0
         state.step += 1
         state.time += dt
         state.dt_prev = dt
