@@ -53,6 +53,15 @@ class Reporter(Protocol):
     def frame(self, index: int, state: State) -> None: ...
 
 
+def make_solver(model: Model, plan: Plan):
+    """The Plan's backend: the CPU Solver, or the CUDA one (numba.cuda is imported only then)."""
+    if plan.backend == "cuda":
+        from pdmpm_cli.engine.cuda import cuda_solver
+
+        return cuda_solver(model, plan)
+    return Solver(model, plan)
+
+
 def static_fields(model: Model, meshes=()) -> dict[str, np.ndarray]:
     from pdmpm_cli.io.ply import mesh_static_fields
 
@@ -108,9 +117,9 @@ def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwr
     from pdmpm_cli.io.vtk import VtkSeriesWriter
 
     scene, plan, model = prep.scene, prep.plan, prep.model
+    solver = make_solver(model, plan)  # before touching the output folder: a missing GPU loses no earlier run
     prepare_output_dir(out, overwrite)
     state = State.allocate(model, prep.disc, plan.fields)
-    solver = Solver(model, plan)
     solver.start(state)
     meshes = prep.disc.meshes
     static = static_fields(model, meshes)

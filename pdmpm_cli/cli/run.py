@@ -1,6 +1,7 @@
 """`pdmpm run`: simulate a scene and write HDF5 + VTK frames, with a progress bar."""
 
 import time
+from enum import Enum
 from pathlib import Path
 from typing import Annotated
 
@@ -9,6 +10,11 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from pdmpm_cli.cli.options import SceneArg, SetOpt, VariantOpt
+
+
+class Backend(str, Enum):
+    cpu = "cpu"
+    cuda = "cuda"
 
 
 class RichReporter:
@@ -50,18 +56,22 @@ def run(
         "--out", "-o", help="Output folder (default outputs/<scene file stem>[-<variant>]).")] = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the outputs of an earlier run.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    backend: Annotated[Backend | None, typer.Option(
+        "--backend", help="Run the step on the cpu or on an NVIDIA GPU (cuda); overrides simulation.backend.",
+        show_default=False)] = None,
 ):
     """Simulate SCENE and write run.h5 (all frames) and vtk/particles.pvd (ParaView) to the output folder."""
     from pdmpm_cli.runner import prepare, simulate
 
     console = Console(stderr=True, highlight=False, soft_wrap=True)
-    prep = prepare(scene, set_, variant)
+    overrides = [*set_, f"simulation.backend={backend.value}"] if backend else set_
+    prep = prepare(scene, overrides, variant)
     for w in prep.plan.warnings():
         console.print(f"[yellow]warning:[/] {w}")
     out = out or Path("outputs") / (scene.stem if variant is None else f"{scene.stem}-{variant}")
     plan = prep.plan
     console.print(f"{prep.scene.name}: {plan.particles} particles, {plan.bonds} bonds, {plan.frames} frames, "
-                  f"dt <= {plan.dt_max:.3g} s -> {out}")
+                  f"dt <= {plan.dt_max:.3g} s on {plan.backend} -> {out}")
     reporter = None if quiet else RichReporter(console)
     t0 = time.perf_counter()
     try:
