@@ -19,12 +19,12 @@ from pdmpm_cli.runner import make_solver, prepare_scene
 from pdmpm_cli.scene.schema import Scene
 
 BLOCK = {"mode": "cloud", "sampling": "lattice", "spacing": 0.05,
-         "shape": {"type": "box", "center": [0.5, 0.29, 0.5], "size": [0.2, 0.2, 0.2]}}
+         "shape": {"type": "box", "center": [0.5, 0.27, 0.5], "size": [0.2, 0.2, 0.2]}}
 ELASTIC = {"model": "elastic", "density": 1000.0, "lam": 2e5, "mu": 1e5}
 
 
-def scene(bodies, colliders=(), gravity=(0.0, -9.81, 0.0)) -> dict:
-    return {"simulation": {"duration": 1.0, "fps": 10}, "gravity": list(gravity),
+def scene(bodies, colliders=(), gravity=(0.0, -9.81, 0.0), wind=None) -> dict:
+    return {**({"wind": wind} if wind else {}), "simulation": {"duration": 1.0, "fps": 10}, "gravity": list(gravity),
             "grid": {"cell_size": 0.05, "domain": {"min": [0, 0, 0], "max": [1, 1, 1]}, "friction": 0.3},
             "bodies": bodies, "colliders": list(colliders)}
 
@@ -34,12 +34,12 @@ SCENES = {
     "elastic_floor": scene([{"name": "block", "geometry": BLOCK, "material": ELASTIC, "velocity": [0.5, -8.0, 0.0],
                              "angular_velocity": [0.0, 0.0, 2.0]}]),
     # a soft-yielding slab squashed on the floor: most bonds yield (bond_ep, theta, the return map)
-    "plastic_slab": scene([{"name": "slab", "geometry": {**BLOCK, "shape": {"type": "box", "center": [0.5, 0.23, 0.5],
+    "plastic_slab": scene([{"name": "slab", "geometry": {**BLOCK, "shape": {"type": "box", "center": [0.5, 0.22, 0.5],
                                                                               "size": [0.3, 0.1, 0.2]}},
                             "material": {"model": "plastic", "density": 1000.0, "lam": 2e5, "mu": 1e5,
-                                         "yield_stress": 2e3},
+                                         "yield_stress": 1e3},
                             "velocity": [0.0, -8.0, 0.0]}]),
-    # a pinned bar (one end held, moving) hit by a moving sphere collider; mu = 0 leaves out Fbar
+    # a pinned bar (one end held, moving) in the wind, hit by a moving sphere collider; mu = 0 leaves out Fbar
     "collider_pins": scene([{"name": "bar", "geometry": {**BLOCK, "shape": {"type": "box", "center": [0.5, 0.5, 0.5],
                                                                              "size": [0.4, 0.1, 0.1]}},
                              "material": {"model": "elastic", "density": 500.0, "lam": 3e5, "mu": 0.0},
@@ -48,7 +48,8 @@ SCENES = {
                            colliders=[{"type": "sphere", "center": [0.6, 0.68, 0.5], "radius": 0.12,
                                        "velocity": [0.0, -1.5, 0.0], "boundary": "slip", "friction": 0.2},
                                       {"type": "plane", "point": [0, 0.42, 0], "normal": [0, 1, 0],
-                                       "boundary": "sticky"}]),
+                                       "boundary": "sticky"}],
+                           wind={"velocity": [2.0, 0.0, 1.0], "drag": 5.0}),
 }
 
 
@@ -97,7 +98,7 @@ def compare(name: str, steps: int) -> dict:
 
 
 def main(argv):
-    steps = 8
+    steps = 6
     for name in argv or SCENES:
         print(json.dumps(compare(name, steps)), flush=True)
 

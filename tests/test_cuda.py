@@ -23,8 +23,8 @@ from pdmpm_cli.scene.schema import Scene
 from tests.conftest import BASE, merge
 
 ROOT = Path(__file__).resolve().parents[1]
-# Same time steps on both backends: only the order of P2G's atomic adds differs (measured <= 3e-15 relative
-# on the simulator; a real GPU also fuses multiply-adds, expect a few 1e-14 over these steps).
+# Same time steps on both backends: only the order of P2G's atomic adds differs (measured <= 2e-15 relative
+# on the simulator, e_p 5e-14; a real GPU also fuses multiply-adds, expect a few 1e-14 over these steps).
 TOL = 1e-12
 
 
@@ -55,13 +55,13 @@ def assert_same(row):
 def test_elastic_block_hitting_the_floor(compared):
     row = compared["elastic_floor"]
     assert row["phases"] == ["fbar", "bonds:elastic", "p2g", "grid_update", "g2p"]
-    assert row["external_impulse"] > 1e-3 and row["displacement"] > 0.1  # the floor wall pushed back, it moved
+    assert row["external_impulse"] > 5e-3 and row["displacement"] > 0.1  # the floor wall pushed back, it moved
     assert_same(row)
 
 
 def test_plastic_slab_yields_alike(compared):
     row = compared["plastic_slab"]
-    assert "return_map:plastic" in row["phases"] and row["yielded"] > 0.02
+    assert "return_map:plastic" in row["phases"] and row["yielded"] > 0.2
     assert row["ep_rel"] < 1e-9  # e_p is a difference of nearly equal strains: round-off grows by 1/(yield strain)
     assert row["yield_residual"][1] == pytest.approx(row["yield_residual"][0], abs=1e-12)
     assert row["yield_residual"][1] < 1e-9  # exactly back on the yield surface

@@ -59,7 +59,9 @@ class CudaSolver(Solver):
 
     # ---- host <-> device
     def start(self, state: State):
-        """The CPU start (energy budget, on the host), then upload the State's arrays."""
+        """The CPU start (energy budget, on the host), then upload the State's arrays: the host State is the
+        truth here, whatever the device still holds."""
+        self.dirty = False
         super().start(state)
         for name in DYNAMIC + ("bond_start", "bond_nbr"):
             self.dev[name] = cuda.to_device(getattr(state, name))
@@ -70,7 +72,6 @@ class CudaSolver(Solver):
         self.stats[k.STAT_VMAX] = self.vmax
         self.stats[k.STAT_YIELD] = self.yield_residual
         self.dev["stats"] = cuda.to_device(self.stats)
-        self.dirty = False
 
     def to_host(self, state: State):
         """Copy the device's dynamic arrays into the host State (once per frame, or before an error)."""
