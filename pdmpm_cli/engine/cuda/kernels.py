@@ -27,19 +27,26 @@ N_STATS = 9
 
 
 def device(fn, **callees):
-    """A CUDA device function compiled from the Python source of the @njit helper `fn`, with the jitted helpers it
-    calls replaced by their device versions (`callees`): the simulator cannot call CPU-compiled code."""
+    """A CUDA device function compiled from the Python source of the @njit helper `fn`, with the globals in
+    `callees` replaced: the jitted helpers it calls by their device versions (the simulator cannot call
+    CPU-compiled code), or a module by one whose functions CUDA has."""
     py = fn.py_func
     scope = {**py.__globals__, **callees}
     return cuda.jit(device=True)(types.FunctionType(py.__code__, scope, py.__name__, py.__defaults__, py.__closure__))
 
 
+@cuda.jit(device=True)
+def larger(a, b):
+    """max(a, b) as Python defines it (b only if b > a): numba 0.68's CUDA target cannot compile the builtin."""
+    return b if b > a else a
+
+
 d_bond_vector = device(bond_vector)
 d_averaged_bond = device(averaged_bond)
-d_cubic_weights = device(cubic_weights)
+d_cubic_weights = device(cubic_weights, np=math)  # CUDA has no np.floor; math.floor is the same on finite floats
 d_stencil_on_grid = device(stencil_on_grid)
 d_particle_speed = device(particle_speed)
-d_signed_distance = device(signed_distance)
+d_signed_distance = device(signed_distance, max=larger)
 d_respond = device(respond)
 d_collide_all = device(collide_all, signed_distance=d_signed_distance, respond=d_respond)
 d_push_out = device(push_out, signed_distance=d_signed_distance)
@@ -150,7 +157,7 @@ def plastic_return_map(start, end, modulus, psi, particle_x, rest_x, bond_start,
         if abs(e) > limit:
             bond_ep[b] += (e - math.copysign(limit, e)) / modulus
             e = modulus * (e_dev - bond_ep[b])
-        fmax = max(fmax, (0.5 * e * e - psi) / psi)
+        fmax = larger(fmax, (0.5 * e * e - psi) / psi)
     cuda.atomic.max(stats, STAT_YIELD, fmax)
 
 
