@@ -121,7 +121,7 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
         "particle_mass": ((n,), "f8"), "particle_body": ((n,), "i4"), "particle_Kinv": ((n, 3, 3), "f8"),
         "particle_coef": ((n,), "f8"), "particle_omega": ((n,), "f8"),
         "bond_start": ((n + 1,), "i8"), "bond_nbr": ((nb,), "i4"),
-        # P2G's per-thread grids are a CPU device; the GPU adds into one grid with atomics.
+        # Per-thread P2G grids keep the CPU race-free; the GPU adds into the one grid with atomics.
         "grid": (nodes + (4,), "f8"),
         "grid_private": ((numba.get_num_threads() if sim.backend == "cpu" else 0,) + nodes + (4,), "f8"),
     }
