@@ -15,6 +15,7 @@ from pdmpm_cli.engine.bonds import bond_time_steps
 from pdmpm_cli.engine.discretize import Discretization
 from pdmpm_cli.engine.materials import MATERIALS, kind_of
 from pdmpm_cli.engine.model import Model
+from pdmpm_cli.errors import InputError
 from pdmpm_cli.scene.schema import Scene
 
 
@@ -49,6 +50,7 @@ class Plan:
     wave_speed: float  # fastest P-wave speed over bodies [m/s]
     memory_bytes: int
     notes: tuple[str, ...] = ()  # what loading changed in the input (a flipped mesh, welded vertices)
+    backend: str = "cpu"  # simulation.backend: cpu or cuda
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -61,9 +63,24 @@ class Plan:
         return out
 
 
+def cuda_unsupported(scene: Scene) -> list[str]:
+    """What in the scene the CUDA backend does not run (fracture with its crack particles, viscoelastic bodies)."""
+    out = []
+    for i, body in enumerate(scene.bodies):
+        if body.material.model == "viscoelastic":
+            out.append(f"bodies.{i}.material.model = viscoelastic")
+        if body.fracture is not None:
+            out.append(f"bodies.{i}.fracture")
+    return out
+
+
 def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
     """Decide phases, arrays and time-step bounds for a discretised scene."""
     sim = scene.simulation
+    if sim.backend == "cuda" and (unsupported := cuda_unsupported(scene)):
+        raise InputError(f"simulation.backend = cuda does not run {', '.join(unsupported)} (the GPU step has no "
+                         f"fracture and no viscoelastic bodies yet); use the cpu backend for this scene "
+                         f"(simulation.backend: cpu, or pdmpm run --backend cpu)")
     mats = [b.material for b in scene.bodies]
     kinds = [kind_of(m) for m in mats]
     need_fbar = any(MATERIALS[k].needs_fbar(m) for k, m in zip(kinds, mats))
@@ -104,7 +121,9 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
         "particle_mass": ((n,), "f8"), "particle_body": ((n,), "i4"), "particle_Kinv": ((n, 3, 3), "f8"),
         "particle_coef": ((n,), "f8"), "particle_omega": ((n,), "f8"),
         "bond_start": ((n + 1,), "i8"), "bond_nbr": ((nb,), "i4"),
-        "grid": (nodes + (4,), "f8"), "grid_private": ((numba.get_num_threads(),) + nodes + (4,), "f8"),
+        # Per-thread P2G grids keep the CPU race-free; the GPU adds into the one grid with atomics.
+        "grid": (nodes + (4,), "f8"),
+        "grid_private": ((numba.get_num_threads() if sim.backend == "cpu" else 0,) + nodes + (4,), "f8"),
     }
     if need_fbar:
         fields["particle_Fbar"] = ((n, 3, 3), "f8")
@@ -125,5 +144,5 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
         grid_nodes=nodes, cell_size=scene.grid.cell_size,
         frames=max(1, int(round(sim.duration * sim.fps))), frame_dt=frame_dt, dt_user=sim.dt,
         dt_cfl=dt_cfl, dt_bond=dt_bond, dt_max=dt_max, dt_reduced=reduced, wave_speed=wave, memory_bytes=memory,
-        notes=tuple(disc.notes),
+        notes=tuple(disc.notes), backend=sim.backend,
     )

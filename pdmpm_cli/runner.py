@@ -86,6 +86,15 @@ class Reporter(Protocol):
     def frame(self, index: int, state: State) -> None: ...
 
 
+def make_solver(model: Model, plan: Plan):
+    """The Plan's backend: the CPU Solver, or the CUDA one (numba.cuda is imported only then)."""
+    if plan.backend == "cuda":
+        from pdmpm_cli.engine.cuda import cuda_solver
+
+        return cuda_solver(model, plan)
+    return Solver(model, plan)
+
+
 def static_fields(model: Model, meshes=()) -> dict[str, np.ndarray]:
     from pdmpm_cli.io.ply import mesh_static_fields
 
@@ -166,13 +175,16 @@ def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwr
     from pdmpm_cli.io.sink import FrameSink
 
     scene, plan, model = prep.scene, prep.plan, prep.model
+    if resume is not None and plan.backend == "cuda":
+        raise InputError(f"{out}: --resume runs on the CPU backend only for now (the CUDA solver does not reload a "
+                         f"restored state); resume with --set simulation.backend=cpu")
+    solver = make_solver(model, plan)  # before touching the output folder: a missing GPU loses no earlier run
     with OutputLock(out):
         if resume is None:
             prepare_output_dir(out, overwrite)
         for folder in (out, out / "vtk", out / "meshes", out / checkpoint.FOLDER):
             remove_temporaries(folder)
         state = State.allocate(model, prep.disc, plan.fields)
-        solver = Solver(model, plan)
         solver.start(state)
         first = 0
         if resume is not None:

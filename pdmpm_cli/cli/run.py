@@ -1,6 +1,7 @@
 """`pdmpm run`: simulate a scene and write HDF5 + VTK frames, with a progress bar."""
 
 import time
+from enum import Enum
 from pathlib import Path
 from typing import Annotated
 
@@ -9,6 +10,11 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from pdmpm_cli.cli.options import SetOpt, VariantOpt
+
+
+class Backend(str, Enum):
+    cpu = "cpu"
+    cuda = "cuda"
 
 
 class RichReporter:
@@ -52,6 +58,9 @@ def run(
         "the scene file, --set and --variant the run was started with; with them, they must give the same scene.",
         show_default=False)] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    backend: Annotated[Backend | None, typer.Option(
+        "--backend", help="Run the step on the cpu or on an NVIDIA GPU (cuda); overrides simulation.backend.",
+        show_default=False)] = None,
 ):
     """Simulate SCENE and write run.h5 (all frames) and vtk/particles.pvd (ParaView) to the output folder;
     --resume OUTDIR continues a killed run from its newest checkpoint."""
@@ -61,25 +70,26 @@ def run(
     from pdmpm_cli.runner import prepare, prepare_resume, simulate
 
     console = Console(stderr=True, highlight=False, soft_wrap=True)
+    overrides = [*set_, f"simulation.backend={backend.value}"] if backend else set_
     ckpt = None
     if resume is not None:
         if overwrite or (out is not None and out.resolve() != resume.resolve()):
             raise InputError("--resume continues the run in its own folder: leave out --overwrite and --out")
-        if scene is None and (set_ or variant):
-            raise InputError("--set and --variant apply to a SCENE: with --resume give the scene file too, or "
-                             "leave them out to use the run's own")
-        prep, ckpt = prepare_resume(resume, scene, set_, variant)
+        if scene is None and (overrides or variant):
+            raise InputError("--set, --variant and --backend apply to a SCENE: with --resume give the scene file too, "
+                             "or leave them out to use the run's own")
+        prep, ckpt = prepare_resume(resume, scene, overrides, variant)
         out = resume
     elif scene is None:
         raise InputError("missing SCENE: give a scene file (pdmpm run scene.yaml), or --resume OUTDIR")
     else:
-        prep = prepare(scene, set_, variant)
+        prep = prepare(scene, overrides, variant)
         out = out or Path("outputs") / (scene.stem if variant is None else f"{scene.stem}-{variant}")
     for w in prep.plan.warnings():
         console.print(f"[yellow]warning:[/] {w}")
     plan = prep.plan
     console.print(f"{prep.scene.name}: {plan.particles} particles, {plan.bonds} bonds, {plan.frames} frames, "
-                  f"dt <= {plan.dt_max:.3g} s -> {out}")
+                  f"dt <= {plan.dt_max:.3g} s on {plan.backend} -> {out}")
     if ckpt is not None:
         console.print(f"resuming from frame {ckpt.frame} (t = {ckpt.attrs['time']:.6g} s, "
                       f"step {ckpt.attrs['step']}); frames after it are written again")

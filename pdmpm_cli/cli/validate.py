@@ -31,6 +31,7 @@ def validate(
 
 def print_plan(console: Console, plan):
     console.print(f"phases per step: {' -> '.join(plan.phases)}")
+    console.print(f"backend: {plan.backend}")
     bodies = Table(title="bodies")
     bodies.add_column("")
     for b in plan.bodies:

@@ -380,6 +380,10 @@ class Simulation(Strict):
         0.7, gt=0, le=1.0, description="Safety factor on the peridynamic bond time-step bound [-]."
     )
     seed: int = Field(0, ge=0, description="Seed of the random particle sampling [-].")
+    backend: Literal["cpu", "cuda"] = Field(
+        "cpu", description="Where the step runs: cpu (Numba, all threads) or cuda (one NVIDIA GPU through numba.cuda; "
+                           "elastic and plastic bodies without fracture). `pdmpm run --backend` overrides it."
+    )
 
 
 class Wind(Strict):

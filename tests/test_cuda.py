@@ -1,0 +1,172 @@
+"""The CUDA backend against the CPU one, on numba's CUDA simulator (CI has no GPU).
+
+The simulator must be switched on before numba.cuda is first imported, so everything that touches numba.cuda runs
+in a subprocess with NUMBA_ENABLE_CUDASIM=1; this process never imports it. The simulator runs the kernels as
+Python threads (about a second per step on these 32-64 particle scenes), so the scenes are tiny and short.
+"""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pdmpm_cli.errors import InputError
+from pdmpm_cli.io.hdf5 import read_run
+from pdmpm_cli.runner import prepare, prepare_scene, simulate
+from pdmpm_cli.scene.schema import Scene
+from tests.conftest import BASE, merge
+
+ROOT = Path(__file__).resolve().parents[1]
+# Same time steps on both backends: only the order of P2G's atomic adds differs (measured <= 2e-15 relative
+# on the simulator, e_p 5e-14; a real GPU also fuses multiply-adds, expect a few 1e-14 over these steps).
+TOL = 1e-12
+
+
+def python(*args, sim: bool, timeout=300):
+    env = dict(os.environ, COLUMNS="200", NUMBA_ENABLE_CUDASIM="1" if sim else "0")
+    return subprocess.run([sys.executable, *args], capture_output=True, text=True, cwd=ROOT, env=env,
+                          timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def compared():
+    """tests.cuda_compare on its three scenes, once for the module: {scene: measured differences}."""
+    r = python("-m", "tests.cuda_compare", sim=True)
+    assert r.returncode == 0, r.stderr
+    rows = [json.loads(line) for line in r.stdout.splitlines()]
+    for row in rows:
+        print(f"\n{row['scene']}: {row['particles']} particles, {row['steps']} steps, |dx| {row['x_rel']:.1e}, "
+              f"|dv| {row['v_rel']:.1e}, |dC| {row['c_rel']:.1e} (relative), e_p {row.get('ep_rel', 0):.1e}")
+    return {row["scene"]: row for row in rows}
+
+
+def assert_same(row):
+    assert row["x_rel"] < TOL and row["v_rel"] < TOL and row["c_rel"] < TOL
+    assert row["vmax"][1] == pytest.approx(row["vmax"][0], rel=TOL)  # hence the same time steps in a real run
+    assert row["energy"][1] == pytest.approx(row["energy"][0], rel=TOL)  # host diagnostics see the device state
+
+
+def test_elastic_block_hitting_the_floor(compared):
+    row = compared["elastic_floor"]
+    assert row["phases"] == ["fbar", "bonds:elastic", "p2g", "grid_update", "g2p"]
+    assert row["external_impulse"] > 5e-3 and row["displacement"] > 0.1  # the floor wall pushed back, it moved
+    assert_same(row)
+
+
+def test_plastic_slab_yields_alike(compared):
+    row = compared["plastic_slab"]
+    assert "return_map:plastic" in row["phases"] and row["yielded"] > 0.2
+    assert row["ep_rel"] < 1e-9  # e_p is a difference of nearly equal strains: round-off grows by 1/(yield strain)
+    assert row["yield_residual"][1] == pytest.approx(row["yield_residual"][0], abs=1e-12)
+    assert row["yield_residual"][1] < 1e-9  # exactly back on the yield surface
+    assert_same(row)
+
+
+def test_collider_and_pins(compared):
+    row = compared["collider_pins"]
+    assert "fbar" not in row["phases"]  # mu = 0
+    assert row["pinned"] > 0 and row["pin_v_err"] == 0.0
+    assert row["external_impulse"] > 1e-2
+    assert_same(row)
+
+
+def test_kernels_compile_for_an_h100():
+    """What the simulator cannot check: each kernel, with the argument types of real runs, compiles to PTX for
+    sm_90 (needs the CUDA toolkit's NVVM, no GPU; skipped without it)."""
+    r = python("-m", "tests.cuda_ptx", sim=False)
+    if r.returncode == 3:
+        pytest.skip(r.stderr.strip())
+    assert r.returncode == 0, r.stderr[-3000:]
+    compiled = {line.split(":")[0] for line in r.stdout.splitlines()}
+    assert compiled == {"averaged_deformation", "elastic_forces", "bond_dilatation", "plastic_return_map",
+                        "zero_box", "p2g", "grid_update", "reset_stats", "g2p"}
+
+
+TINY = textwrap.dedent("""\
+    name: tiny
+    simulation: {duration: 0.004, fps: 500}
+    grid: {cell_size: 0.05, domain: {min: [0, 0, 0], max: [1, 1, 1]}}
+    gravity: [0, -9.81, 0]
+    bodies:
+      - name: block
+        geometry: {mode: cloud, sampling: lattice, spacing: 0.05,
+                   shape: {type: box, center: [0.5, 0.3, 0.5], size: [0.15, 0.15, 0.15]}}
+        material: {model: elastic, density: 1000, lam: 2e5, mu: 1e5}
+        velocity: [0, -2, 0]
+    """)
+
+
+def test_run_with_backend_cuda_writes_the_cpu_frames(tmp_path):
+    """`pdmpm run --backend cuda` end to end (simulator): frames from the device State match a CPU run."""
+    scene = tmp_path / "tiny.yaml"
+    scene.write_text(TINY)
+    r = python("-m", "pdmpm_cli", "run", scene, "--out", tmp_path / "gpu", "--quiet", "--backend", "cuda", sim=True)
+    assert r.returncode == 0, r.stderr
+    assert "on cuda" in r.stderr
+    simulate(prepare(scene), tmp_path / "cpu")
+    gpu, cpu = read_run(tmp_path / "gpu" / "run.h5"), read_run(tmp_path / "cpu" / "run.h5")
+    assert gpu.plan["backend"] == "cuda" and cpu.plan["backend"] == "cpu"
+    assert len(gpu) == len(cpu) == 3 and gpu.times.tolist() == cpu.times.tolist()
+    for f in (1, 2):
+        np.testing.assert_allclose(gpu.frame(f)["particle_x"], cpu.frame(f)["particle_x"], rtol=0, atol=TOL)
+        np.testing.assert_allclose(gpu.frame(f)["particle_v"], cpu.frame(f)["particle_v"], rtol=0, atol=2 * TOL)
+    assert not np.allclose(gpu.frame(2)["particle_x"], gpu.frame(0)["particle_x"])
+
+
+@pytest.mark.skipif(shutil.which("nvidia-smi") is not None, reason="this machine may have a GPU")
+def test_cuda_without_gpu_is_an_input_error_and_cpu_never_imports_numba_cuda(tmp_path):
+    scene = tmp_path / "tiny.yaml"
+    scene.write_text(TINY)
+    code = textwrap.dedent(f"""\
+        import sys
+        from pdmpm_cli.runner import prepare, simulate
+        simulate(prepare({str(scene)!r}), __import__("pathlib").Path({str(tmp_path / "cpu")!r}))
+        print("numba.cuda" in sys.modules)
+        """)
+    r = python("-c", code, sim=False)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "False"
+    (tmp_path / "gpu").mkdir()
+    (tmp_path / "gpu" / "keep.txt").write_text("an earlier run")
+    r = python("-m", "pdmpm_cli", "run", scene, "--out", tmp_path / "gpu", "--overwrite", "--backend", "cuda",
+               sim=False)
+    assert r.returncode == 2
+    assert "error: simulation.backend = cuda needs an NVIDIA GPU with a working CUDA driver, and numba.cuda finds " \
+           "none; run with --backend cpu" in r.stderr
+    assert (tmp_path / "gpu" / "keep.txt").exists()
+
+
+@pytest.mark.parametrize("body, named", [
+    ({"fracture": {"threshold": 0.05}}, "bodies.0.fracture"),
+    ({"material": {"model": "viscoelastic", "density": 1000.0, "lam": 1e4, "mu": 1e3, "relaxation_time": 0.1,
+                   "relaxing_fraction": 0.5, "break_stretch": 0.05}}, "bodies.0.material.model = viscoelastic"),
+])
+def test_plan_refuses_what_the_gpu_does_not_run(tmp_path, body, named):
+    small = merge(BASE, {"bodies": [{**BASE["bodies"][0], "geometry": {**BASE["bodies"][0]["geometry"],
+                                                                       "spacing": 0.05}, **body}]})
+    assert prepare_scene(Scene.model_validate(small), tmp_path / "s.yaml").plan.backend == "cpu"
+    with pytest.raises(InputError) as e:
+        prepare_scene(Scene.model_validate(merge(small, {"simulation": {"backend": "cuda"}})), tmp_path / "s.yaml")
+    assert str(e.value) == (f"simulation.backend = cuda does not run {named} (the GPU step has no fracture and no "
+                            f"viscoelastic bodies yet); use the cpu backend for this scene (simulation.backend: cpu, "
+                            f"or pdmpm run --backend cpu)")
+
+
+def test_cuda_plan_has_no_per_thread_grids(tmp_path):
+    scene = merge(BASE, {"simulation": {"backend": "cuda"}, "bodies": [
+        {**BASE["bodies"][0], "geometry": {**BASE["bodies"][0]["geometry"], "spacing": 0.05}}]})
+    plan = prepare_scene(Scene.model_validate(scene), tmp_path / "s.yaml").plan
+    assert plan.fields["grid_private"][0][0] == 0 and plan.phases[-3:] == ("p2g", "grid_update", "g2p")
+
+
+@pytest.mark.slow
+def test_bench_cuda_runs_on_the_simulator():
+    r = python("bench/bench_cuda.py", "--sizes", "60", "--steps", "2", "--profile", sim=True)
+    assert r.returncode == 0, r.stderr
+    assert "device: numba.cuda simulator" in r.stdout and "| 64 |" in r.stdout
