@@ -310,7 +310,7 @@ def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, part
             particle_C[p, a, c] = b[a, c] * scale
     if colliders.shape[0] and not pinned:
         d_push_out(colliders, particle_x[p], t_new, nrm)
-    s = d_particle_speed(v, particle_x, p)
+    s = d_particle_speed(v[0], v[1], v[2], particle_x, p)
     if s < 0.0:
         cuda.atomic.add(stats, STAT_BAD, 1.0)
         return
