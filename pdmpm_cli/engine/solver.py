@@ -54,9 +54,8 @@ class Solver:
         m = self.model
         for body in self.fbar_bodies:
             start, end = m.body_ranges[body]
-            averaged_deformation(start, end, state.particle_x, m.rest_x, m.particle_volume, state.bond_start,
-                                 state.bond_nbr, m.particle_body, m.body_horizon,
-                                 m.particle_Kinv, state.particle_Fbar, particle_chunks())
+            averaged_deformation(start, end, state.particle_x, m.rest_x, state.bond_start, state.bond_nbr,
+                                 state.bond_wv, m.particle_Kinv, state.particle_Fbar, particle_chunks())
 
     def material_phase(self, state: State, stage: str, kind: str, dt: float):
         """Run a material's phase (e.g. return_map:plastic, bonds:elastic) on every body of that kind."""
