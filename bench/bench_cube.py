@@ -1,9 +1,11 @@
 """Throughput of the full step on an elastic cube: particle-steps/s and bond-updates/s per size.
 
 Usage: python bench/bench_cube.py [--sizes 32000 128000 512000] [--steps 20] [--taichi]
-Prints a markdown table (for docs/results.md) with the per-phase split of the step time, the bond passes'
-throughput (Fbar and forces together), memory per particle and, with --taichi (pip install taichi), a plain
-Taichi MLS-MPM step on the same cube without bonds (bench/taichi_cube.py, f32 and f64) and our ratio to it.
+Prints one markdown table (for docs/results.md): per size the step time, particle-steps/s, the bond pass's
+bond-updates/s (directed bonds over the Fbar and force phases together, and over the force phase alone), the
+per-phase split of the step time, memory per particle and the cost per particle-step relative to the smallest
+size; with --taichi (pip install taichi) also a plain Taichi MLS-MPM step on the same cube without bonds
+(bench/taichi_cube.py, f32 and f64) and our ratio to it.
 """
 
 import argparse
@@ -56,7 +58,8 @@ def bench(n_target: int, steps: int, clock=time.perf_counter) -> dict:
     n, nb = prep.plan.particles, prep.plan.bonds
     bond_s = (solver.phase_time["fbar"] + solver.phase_time["bonds:elastic"]) / steps
     return {
-        "bond_pass_per_s": nb / bond_s, "ns_per_particle_step": 1e9 * wall / (n * steps),
+        "bond_pass_per_s": nb / bond_s, "forces_per_s": nb * steps / solver.phase_time["bonds:elastic"],
+        "ns_per_particle_step": 1e9 * wall / (n * steps),
         "particles": n, "bonds_per_particle": nb / n, "step_ms": 1e3 * wall / steps,
         "particle_steps_per_s": n * steps / wall, "bond_updates_per_s": nb * steps / wall,
         "phases": {k: 1e3 * v / steps for k, v in solver.phase_time.items()},
@@ -84,24 +87,28 @@ def main():
     print(f"machine: {platform.processor() or platform.machine()}, {numba.get_num_threads()} threads, "
           f"numba {numba.__version__}, float64, {'CPU' if args.cpu_time else 'wall'} time")
     phases = list(rows[0]["phases"])
-    print("| particles | bonds/particle | step [ms] | particle-steps/s | ns per particle-step | bond-updates/s "
-          "(step) | bond pass (fbar + forces) | " + " | ".join(f"{p} [ms]" for p in phases)
-          + " | plan memory [MiB] | bytes/particle |")
-    print("|" + "---|" * (9 + len(phases)))
-    for r in rows:
-        print(f"| {r['particles']} | {r['bonds_per_particle']:.1f} | {r['step_ms']:.1f} | "
-              f"{r['particle_steps_per_s'] / 1e6:.2f} M | {r['ns_per_particle_step']:.0f} | "
-              f"{r['bond_updates_per_s'] / 1e6:.1f} M | {r['bond_pass_per_s'] / 1e6:.0f} M/s | "
-              + " | ".join(f"{r['phases'][p]:.1f}" for p in phases)
-              + f" | {r['memory_mib']:.0f} | {r['bytes_per_particle']:.0f} |")
+    taichi = {}
     if args.taichi:
-        print("\n| particles | ours (f64, bonds) | Taichi f64 (no bonds) | Taichi f32 (no bonds) | ours / Taichi f64 "
-              "| ours / Taichi f32 |\n|---|---|---|---|---|---|")
-        for r in rows:
-            t64, t32 = (taichi_rate(r["particles"], args.steps, p) for p in ("f64", "f32"))
+        taichi = {r["particles"]: [taichi_rate(r["particles"], args.steps, p) for p in ("f64", "f32")] for r in rows}
+    print("| particles | bonds/particle | step [ms] | particle-steps/s | ns per particle-step | cost / smallest size "
+          "| bond pass (fbar + forces) [bond-updates/s] | forces only [bond-updates/s] | "
+          + " | ".join(f"{p} [ms]" for p in phases) + " | plan memory [MiB] | bytes/particle |"
+          + (" Taichi f64 / f32 (no bonds) | ours / Taichi f64 / f32 |" if taichi else ""))
+    print("|" + "---|" * (10 + len(phases) + 2 * bool(taichi)))
+    base = rows[0]["ns_per_particle_step"]
+    for r in rows:
+        line = (f"| {r['particles']} | {r['bonds_per_particle']:.1f} | {r['step_ms']:.1f} | "
+                f"{r['particle_steps_per_s'] / 1e6:.2f} M | {r['ns_per_particle_step']:.0f} | "
+                f"{r['ns_per_particle_step'] / base:.2f} | {r['bond_pass_per_s'] / 1e6:.0f} M | "
+                f"{r['forces_per_s'] / 1e6:.0f} M | " + " | ".join(f"{r['phases'][p]:.1f}" for p in phases)
+                + f" | {r['memory_mib']:.0f} | {r['bytes_per_particle']:.0f} |")
+        if taichi:
+            t64, t32 = taichi[r["particles"]]
             ours = r["particle_steps_per_s"]
-            print(f"| {r['particles']} | {ours / 1e6:.2f} M | {t64 / 1e6:.2f} M | {t32 / 1e6:.2f} M | "
-                  f"{ours / t64:.2f} | {ours / t32:.2f} |")
+            line += f" {t64 / 1e6:.2f} M / {t32 / 1e6:.2f} M | {ours / t64:.2f} / {ours / t32:.2f} |"
+        print(line)
+    print(f"\ncost per particle-step, {rows[-1]['particles']} / {rows[0]['particles']} particles: "
+          f"{rows[-1]['ns_per_particle_step'] / base:.2f}")
 
 
 if __name__ == "__main__":

@@ -44,7 +44,7 @@ FORMAT_VERSION = 1
 FOLDER = "checkpoints"
 KEEP = 2
 SOLVER_SCALARS = ("vmax", "crack_vmax", "energy_budget", "energy_prev", "yield_residual", "bonds_cut")
-TRANSIENT = ("grid", "grid_private")  # cleared and refilled by every P2G
+TRANSIENT = ("grid", "grid_private", "particle_force_private")  # cleared and refilled every step
 
 
 @dataclass

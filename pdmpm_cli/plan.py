@@ -125,6 +125,12 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
         "grid": (nodes + (4,), "f8"),
         "grid_private": ((numba.get_num_threads() if sim.backend == "cpu" else 0,) + nodes + (4,), "f8"),
     }
+    pair_forces = any(MATERIALS[k].pair_forces for k in used)
+    if pair_forces:  # the elastic pair forces scatter into one force array per thread (CPU)
+        fields["particle_force_private"] = ((numba.get_num_threads() if sim.backend == "cpu" else 0, n, 3), "f8")
+    if pair_forces or need_fbar:  # reference bond factors, computed once
+        fields["bond_wv"] = ((nb,), "f8")
+        fields["bond_inv_len"] = ((nb,), "f8")
     if need_fbar:
         fields["particle_Fbar"] = ((n, 3, 3), "f8")
     for k in used:

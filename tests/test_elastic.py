@@ -5,7 +5,7 @@ import pytest
 
 from pdmpm_cli.engine.bonds import averaged_deformation
 from pdmpm_cli.engine.parallel import particle_chunks
-from pdmpm_cli.engine.materials.elastic import effective_constants, elastic_energy, elastic_forces
+from pdmpm_cli.engine.materials.elastic import effective_constants, elastic_energy, elastic_forces, sum_forces
 
 NONE_U1 = np.zeros(0, np.uint8)  # no fracture: every bond intact
 NONE_F8 = np.zeros(0)  # no plasticity: e_p = 0
@@ -24,13 +24,14 @@ def deform(sim, F):
     c = m.rest_x.mean(axis=0)
     x = (m.rest_x - c) @ np.asarray(F).T + c
     fbar = np.zeros((len(x), 3, 3))
-    averaged_deformation(0, len(x), x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, m.particle_body,
-                         m.body_horizon, m.particle_Kinv, fbar, particle_chunks())
+    averaged_deformation(0, len(x), x, m.rest_x, m.bond_start, m.bond_nbr, sim.state.bond_wv, m.particle_Kinv, fbar,
+                         particle_chunks())
     mat = m.materials[0]
     delta = m.body_horizon[0]
-    force = np.zeros_like(x)
-    elastic_forces(0, len(x), mat.lam, mat.mu, delta, x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr,
-                   NONE_U1, NONE_F8, NONE_U1, m.particle_coef, fbar, force, particle_chunks())
+    force, private = np.zeros_like(x), np.zeros((3,) + x.shape)  # three thread arrays, whatever the thread count
+    elastic_forces(0, len(x), mat.lam, mat.mu, x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr,
+                   sim.state.bond_wv, sim.state.bond_inv_len, NONE_U1, NONE_F8, NONE_U1, m.particle_coef, fbar, private)
+    sum_forces(0, len(x), private, force)
     w = np.array([elastic_energy(p, p + 1, mat.lam, mat.mu, delta, x, m.rest_x, m.particle_volume, m.bond_start,
                                  m.bond_nbr, NONE_U1, NONE_F8, NONE_U1, m.particle_coef, fbar) / m.particle_volume[p]
                   for p in range(len(x))])
@@ -115,3 +116,40 @@ def test_lattice_sampling_is_anisotropic(sim_factory):
     c11, c12 = fit_moduli(sim)
     e100 = (c11 - c12) * (c11 + 2 * c12) / (c11 + c12)
     assert e100 / (5 * 3e5 / 6) > 1.15
+
+
+def pair_forces(sim, x, fbar, private, active, crack, ep):
+    m, mat = sim.model, sim.model.materials[0]
+    force = np.zeros_like(x)
+    elastic_forces(0, len(x), mat.lam, mat.mu, x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr,
+                   sim.state.bond_wv, sim.state.bond_inv_len, active, ep, crack, m.particle_coef, fbar, private)
+    sum_forces(0, len(x), private, force)
+    return force
+
+
+def test_pair_forces_conserve_momentum_for_any_thread_count(sim_factory):
+    """Each bond pair is evaluated once and its forces are equal and opposite (eq. 7): with random motion, broken
+    bonds (both directions), crack-surface particles and plastic strain, the forces sum to zero, and one, two or
+    seven per-thread force arrays give the same forces to round-off."""
+    from pdmpm_cli.engine.fracture import cut_pair
+
+    sim = sim_factory()
+    m = sim.model
+    rng = np.random.default_rng(7)
+    x = m.rest_x + 0.05 * m.body_spacing[0] * rng.standard_normal(m.rest_x.shape)
+    fbar = np.zeros((len(x), 3, 3))
+    averaged_deformation(0, len(x), x, m.rest_x, m.bond_start, m.bond_nbr, sim.state.bond_wv, m.particle_Kinv, fbar,
+                         particle_chunks())
+    active = np.ones(len(m.bond_nbr), np.uint8)
+    for b in rng.choice(len(m.bond_nbr), len(m.bond_nbr) // 10, replace=False):
+        p = np.searchsorted(m.bond_start, b, side="right") - 1
+        cut_pair(b, p, m.bond_start, m.bond_nbr, active)
+    crack = (rng.random(len(x)) < 0.1).astype(np.uint8)
+    src = np.repeat(np.arange(len(x)), np.diff(m.bond_start))
+    ep = 1e-3 * np.sin(src + m.bond_nbr)  # symmetric in p, q like the return map's e_p
+    typical = 3e5 * 0.05 * m.particle_volume[0] ** (2 / 3)
+    forces = [pair_forces(sim, x, fbar, np.zeros((nt,) + x.shape), active, crack, ep) for nt in (1, 2, 7)]
+    assert np.abs(forces[0]).max() > 1e-3 * typical
+    for f in forces:
+        assert np.abs(f.sum(axis=0)).max() < 1e-12 * typical * np.sqrt(len(x))
+        np.testing.assert_allclose(f, forces[0], rtol=0, atol=1e-12 * np.abs(forces[0]).max())

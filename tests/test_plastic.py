@@ -54,8 +54,8 @@ def test_shear_load_unload_reload(sim_factory):
     for g in path:
         x = m.rest_x.copy()
         x[:, 0] += g * (m.rest_x[:, 1] - c[1])
-        averaged_deformation(0, n, x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, m.particle_body,
-                             m.body_horizon, m.particle_Kinv, fbar, particle_chunks())
+        averaged_deformation(0, n, x, m.rest_x, m.bond_start, m.bond_nbr, sim.state.bond_wv, m.particle_Kinv, fbar,
+                             particle_chunks())
         bond_dilatation(0, n, delta, x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, NONE_U1, theta)
         worst = max(worst, plastic_return_map(0, n, lam + 2 * mu, 0.5 * sy**2, x, m.rest_x, m.bond_start,
                                               m.bond_nbr, NONE_U1, theta, ep))

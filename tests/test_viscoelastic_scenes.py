@@ -74,3 +74,27 @@ def test_colliding_blobs_conserve_momentum(sim_factory):
     print(f"\nmomentum drift {drift:.2e}; bonds {bonds0} -> {len(sim.state.bond_nbr)}")
     assert len(sim.state.bond_nbr) != bonds0  # families were rebuilt
     assert drift < 1e-10
+
+
+def test_rebuilt_families_keep_the_elastic_bond_factors(sim_factory):
+    """A viscoelastic blob before an elastic cube: its family rebuilds move the cube's bond indices, and the cube's
+    stored bond factors (bond_wv, bond_inv_len, used by Fbar and the pair forces) move with them."""
+    from pdmpm_cli.engine.bonds import bond_reference_terms
+
+    cube = {"name": "cube", "geometry": {"mode": "cloud", "shape": {"type": "box", "center": [0.3, 0.12, 0.15],
+                                                                     "size": [0.08, 0.08, 0.08]}},
+            "material": {"model": "elastic", "density": 1000.0, "lam": 1e5, "mu": 1e5}}
+    sim = sim_factory(base=merge(BLOB, {"simulation": {"duration": 0.2}, "bodies": [BLOB["bodies"][0], cube]}))
+    assert "fbar" in sim.plan.phases and len(sim.state.bond_wv) == sim.plan.bonds
+    initial = sim.state.bond_nbr.copy()
+    sim.advance(0.2)
+    st, m = sim.state, sim.model
+    assert len(st.bond_nbr) != len(initial) or (st.bond_nbr != initial).any()  # the blob's families were rebuilt
+    wv, inv = np.zeros(len(st.bond_nbr)), np.zeros(len(st.bond_nbr))
+    bond_reference_terms(m.rest_x, m.particle_volume, st.bond_start, st.bond_nbr, m.particle_body, m.body_horizon,
+                         wv, inv)
+    start, end = m.body_ranges[1]
+    b0, b1 = st.bond_start[start], st.bond_start[end]
+    assert b1 > b0
+    np.testing.assert_array_equal(st.bond_wv[b0:b1], wv[b0:b1])
+    np.testing.assert_array_equal(st.bond_inv_len[b0:b1], inv[b0:b1])

@@ -109,34 +109,45 @@ def chunk_width(bond_start, lo, hi):
     return width
 
 
+@njit(parallel=True, cache=True)
+def bond_reference_terms(rest_x, particle_volume, bond_start, bond_nbr, particle_body, body_horizon, bond_wv,
+                         bond_inv_len):
+    """Per bond p -> q, the reference factors the bond passes reuse every step: w(|xi|) V_q (eq. 4's weight times
+    the neighbour's volume) -> bond_wv and 1 / |xi| -> bond_inv_len."""
+    for p in prange(rest_x.shape[0]):
+        delta = body_horizon[particle_body[p]]
+        for b in range(bond_start[p], bond_start[p + 1]):
+            q = bond_nbr[b]
+            r = bond_vector(rest_x, p, q)[3]
+            bond_wv[b] = (1.0 - r / delta) * particle_volume[q]
+            bond_inv_len[b] = 1.0 / r
+
+
 @njit(parallel=True, cache=True, fastmath=VECTOR_MATH, error_model="numpy")
-def averaged_deformation(start, end, particle_x, rest_x, particle_volume, bond_start, bond_nbr, particle_body,
-                         body_horizon, particle_Kinv, particle_Fbar, chunks):
+def averaged_deformation(start, end, particle_x, rest_x, bond_start, bond_nbr, bond_wv, particle_Kinv,
+                         particle_Fbar, chunks):
     """Fbar_p = (sum_q w V_q eta (x) xi) K_p^-1 (eq. 4 with METHOD.md's correction: eta, not w, in front) for
     particles start..end-1, over the whole reference family: only intact particles use Fbar (a particle with a
     broken bond uses eta instead, elastic.py), so the sum always matches the K^-1 it is multiplied by.
 
-    Two loops per particle: a gather of its neighbours' bond vectors into contiguous scratch rows, then a
-    loop without gathers that the compiler turns into SIMD (the weights' square roots included)."""
+    Two loops per particle: a gather of its neighbours' bond vectors (w V_q is stored per bond, bond_wv) into
+    contiguous scratch rows, then a loop without gathers that the compiler turns into SIMD."""
     n = end - start
     for t in prange(chunks):
         lo, hi = start + t * n // chunks, start + (t + 1) * n // chunks
-        s = np.empty((7, chunk_width(bond_start, lo, hi)))  # xi (3), eta (3), V_q
+        s = np.empty((6, chunk_width(bond_start, lo, hi)))  # w V_q xi (3), eta (3)
         for p in range(lo, hi):
-            inv_delta = 1.0 / body_horizon[particle_body[p]]
             r0, r1, r2 = rest_x[p, 0], rest_x[p, 1], rest_x[p, 2]
             p0, p1, p2 = particle_x[p, 0], particle_x[p, 1], particle_x[p, 2]
             b0, m = bond_start[p], bond_start[p + 1] - bond_start[p]
             for k in range(m):
-                q = bond_nbr[b0 + k]
-                s[0, k], s[1, k], s[2, k] = rest_x[q, 0] - r0, rest_x[q, 1] - r1, rest_x[q, 2] - r2
+                q, w = bond_nbr[b0 + k], bond_wv[b0 + k]
+                s[0, k], s[1, k], s[2, k] = w * (rest_x[q, 0] - r0), w * (rest_x[q, 1] - r1), w * (rest_x[q, 2] - r2)
                 s[3, k], s[4, k], s[5, k] = particle_x[q, 0] - p0, particle_x[q, 1] - p1, particle_x[q, 2] - p2
-                s[6, k] = particle_volume[q]
             a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
             for k in range(m):
                 x0, x1, x2 = s[0, k], s[1, k], s[2, k]
-                w = (1.0 - math.sqrt(x0 * x0 + x1 * x1 + x2 * x2) * inv_delta) * s[6, k]
-                e0, e1, e2 = w * s[3, k], w * s[4, k], w * s[5, k]
+                e0, e1, e2 = s[3, k], s[4, k], s[5, k]
                 a00 += e0 * x0
                 a01 += e0 * x1
                 a02 += e0 * x2

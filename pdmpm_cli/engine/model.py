@@ -5,7 +5,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pdmpm_cli.engine.bonds import calibration_coefficients, reference_family_terms
+from pdmpm_cli.engine.bonds import bond_reference_terms, calibration_coefficients, reference_family_terms
 from pdmpm_cli.engine.colliders import BOUNDARY_CODES, collider_table
 from pdmpm_cli.engine.discretize import Discretization
 from pdmpm_cli.scene.schema import Scene
@@ -91,6 +91,9 @@ class State:
     bond_start: np.ndarray  # CSR families: the Model's, replaced when viscoelastic families are rebuilt
     bond_nbr: np.ndarray
     particle_Fbar: np.ndarray = _empty(3, 3)  # eq. 4
+    particle_force_private: np.ndarray = _empty(0, 3)  # (threads, n, 3) scatter targets of the elastic pair forces
+    bond_wv: np.ndarray = _empty()  # w(|xi|) V_q per bond (eq. 4), for Fbar and the elastic forces [m^3]
+    bond_inv_len: np.ndarray = _empty()  # 1 / |xi| per bond [1/m]
     bond_ep: np.ndarray = _empty()  # plastic strain per bond (eq. 9) [-]
     particle_theta: np.ndarray = _empty()  # dilatation for e_iso (eq. 9) [-]
     bond_active: np.ndarray = _empty(dtype="u1")  # 1 intact, 0 broken (section 6)
@@ -122,6 +125,9 @@ class State:
         for name, (shape, dtype) in fields.items():
             if name in optional:
                 setattr(state, name, np.zeros(shape, dtype=dtype))
+        if len(state.bond_wv):
+            bond_reference_terms(model.rest_x, model.particle_volume, model.bond_start, model.bond_nbr,
+                                 model.particle_body, model.body_horizon, state.bond_wv, state.bond_inv_len)
         if len(state.bond_active):
             state.bond_active[:] = 1
         if len(state.particle_x_prev):

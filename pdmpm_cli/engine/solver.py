@@ -11,7 +11,7 @@ from pdmpm_cli.engine.fracture import (bond_criterion, crack_contact, crack_part
                                       inactive_fraction)
 from pdmpm_cli.engine.materials import MATERIALS
 from pdmpm_cli.engine.model import Model, State
-from pdmpm_cli.engine.transfer import WALL, p2g, grid_update, g2p
+from pdmpm_cli.engine.transfer import WALL, g2p, grid_update, p2g, position_bounds
 from pdmpm_cli.errors import SimulationError
 from pdmpm_cli.plan import Plan
 
@@ -54,9 +54,8 @@ class Solver:
         m = self.model
         for body in self.fbar_bodies:
             start, end = m.body_ranges[body]
-            averaged_deformation(start, end, state.particle_x, m.rest_x, m.particle_volume, state.bond_start,
-                                 state.bond_nbr, m.particle_body, m.body_horizon,
-                                 m.particle_Kinv, state.particle_Fbar, particle_chunks())
+            averaged_deformation(start, end, state.particle_x, m.rest_x, state.bond_start, state.bond_nbr,
+                                 state.bond_wv, m.particle_Kinv, state.particle_Fbar, particle_chunks())
 
     def material_phase(self, state: State, stage: str, kind: str, dt: float):
         """Run a material's phase (e.g. return_map:plastic, bonds:elastic) on every body of that kind."""
@@ -69,8 +68,9 @@ class Solver:
     def node_box(self, state: State) -> np.ndarray:
         """Node index box [i0, i1) x [j0, j1) x [k0, k1) touched by the particles' B-spline stencils."""
         m = self.model
-        lo = np.floor((state.particle_x.min(axis=0) - m.origin) / m.dx).astype(np.int64) - 2
-        hi = np.floor((state.particle_x.max(axis=0) - m.origin) / m.dx).astype(np.int64) + 4
+        x_lo, x_hi = position_bounds(state.particle_x, particle_chunks())
+        lo = np.floor((x_lo - m.origin) / m.dx).astype(np.int64) - 2
+        hi = np.floor((x_hi - m.origin) / m.dx).astype(np.int64) + 4
         shape = np.asarray(m.grid_shape)
         lo = np.clip(lo, 0, shape)
         hi = np.clip(hi, 0, shape)

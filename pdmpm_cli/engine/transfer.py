@@ -33,6 +33,26 @@ def stencil_on_grid(fx, fy, fz, grid):
 
 
 @njit(parallel=True, cache=True)
+def position_bounds(particle_x, chunks):
+    """Per-axis smallest and largest particle position, (lo, hi): the extent the P2G node box covers. One pass over
+    particle_x in static chunks (numpy's axis reductions over an (n, 3) array walk it three times, strided)."""
+    n = particle_x.shape[0]
+    lo = np.full((chunks, 3), np.inf)
+    hi = np.full((chunks, 3), -np.inf)
+    for t in prange(chunks):
+        for p in range(t * n // chunks, (t + 1) * n // chunks):
+            for a in range(3):
+                lo[t, a] = min(lo[t, a], particle_x[p, a])
+                hi[t, a] = max(hi[t, a], particle_x[p, a])
+    out_lo = np.empty(3)
+    out_hi = np.empty(3)
+    for a in range(3):
+        out_lo[a] = lo[:, a].min()
+        out_hi[a] = hi[:, a].max()
+    return out_lo, out_hi
+
+
+@njit(parallel=True, cache=True)
 def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt, origin,
         inv_dx, box, grid_private, grid):
     """P2G of mass, APIC momentum and dt * bond force (eq. 7: f_I = sum_p N_I(x_p) f_p) -> grid.

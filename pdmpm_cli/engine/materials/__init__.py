@@ -21,6 +21,7 @@ class MaterialKind:
     bond_fields: dict[str, str] = field(default_factory=dict)  # per-bond state arrays: name -> dtype
     particle_fields: dict[str, tuple] = field(default_factory=dict)  # name -> (trailing shape, dtype)
     init: Callable | None = None  # fn(model, state, body): initial values of the material's state arrays
+    pair_forces: bool = False  # the bond pass is elastic.py's pair pass: per-thread force arrays, bond_wv, bond_inv_len
 
 
 MATERIALS: dict[str, MaterialKind] = {
@@ -29,6 +30,7 @@ MATERIALS: dict[str, MaterialKind] = {
         energy=elastic.energy,
         effective_constants=elastic.effective_constants,
         needs_fbar=lambda mat: mat.mu > 0,
+        pair_forces=True,
     ),
     "plastic": MaterialKind(
         phases={"return_map": plastic.return_map, "bonds": elastic.forces},
@@ -37,6 +39,7 @@ MATERIALS: dict[str, MaterialKind] = {
         needs_fbar=lambda mat: mat.mu > 0,
         bond_fields={"bond_ep": "f8"},
         particle_fields={"particle_theta": ((), "f8")},
+        pair_forces=True,
     ),
     "viscoelastic": MaterialKind(
         phases={"families": viscoelastic.refresh_families, "bonds": viscoelastic.forces},

@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit, prange
 
 from pdmpm_cli.engine.bonds import bond_vector, chunk_width
-from pdmpm_cli.engine.parallel import VECTOR_MATH, particle_chunks
+from pdmpm_cli.engine.parallel import VECTOR_MATH
 
 TINY = 1e-300  # floor of a squared bond length: a zero-length bond gets a finite coefficient times a zero vector
 
@@ -38,84 +38,117 @@ def averaged_bond(fbar, x0, x1, x2):
     return y0, y1, y2, math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
 
 
-@njit(parallel=True, cache=True, fastmath=VECTOR_MATH, error_model="numpy")
-def elastic_forces(start, end, lam, mu, delta, particle_x, rest_x, particle_volume, bond_start, bond_nbr,
-                   bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, particle_force, chunks):
-    """Bond forces f_p (eqs. 6-7, 9) for particles start..end-1 of one elastic or plastic body -> particle_force.
-
-    Per particle, a gather loop writes each intact bond's xi, eta, Ybar_p and Ybar_q into contiguous scratch
-    rows; a second loop without gathers evaluates the four lengths and strains per bond as SIMD. Writing
-    (|y|/|xi| - 1 - e_p)/|y| as 1/|xi| - (1 + e_p)/|y| leaves one division per strain."""
-    has_active = bond_active.shape[0] > 0
-    has_crack = particle_crack.shape[0] > 0
-    has_ep = bond_ep.shape[0] > 0
-    has_mu = mu > 0.0
-    n = end - start
-    inv_delta = 1.0 / delta
-    for t in prange(chunks):
-        lo, hi = start + t * n // chunks, start + (t + 1) * n // chunks
-        s = np.zeros((15, chunk_width(bond_start, lo, hi)))  # xi, eta, Ybar_p, Ybar_q (3 each), V_q, c_q, 1 + e_p
-        for p in range(lo, hi):
-            # Everything of p in scalars: the stores into s would otherwise make the compiler reload it per bond.
-            r0, r1, r2 = rest_x[p, 0], rest_x[p, 1], rest_x[p, 2]
-            p0, p1, p2 = particle_x[p, 0], particle_x[p, 1], particle_x[p, 2]
-            f = p if has_mu else 0
-            a00, a01, a02 = particle_Fbar[f, 0, 0], particle_Fbar[f, 0, 1], particle_Fbar[f, 0, 2]
-            a10, a11, a12 = particle_Fbar[f, 1, 0], particle_Fbar[f, 1, 1], particle_Fbar[f, 1, 2]
-            a20, a21, a22 = particle_Fbar[f, 2, 0], particle_Fbar[f, 2, 1], particle_Fbar[f, 2, 2]
-            p_crack = has_crack and particle_crack[p] != 0
-            m = 0
-            for b in range(bond_start[p], bond_start[p + 1]):
-                if has_active and bond_active[b] == 0:
-                    continue
-                q = bond_nbr[b]
-                x0, x1, x2 = rest_x[q, 0] - r0, rest_x[q, 1] - r1, rest_x[q, 2] - r2
-                e0, e1, e2 = particle_x[q, 0] - p0, particle_x[q, 1] - p1, particle_x[q, 2] - p2
-                s[0, m], s[1, m], s[2, m] = x0, x1, x2
+@njit(cache=True, inline="always")
+def gather_pairs(p, has_mu, has_crack, has_active, has_ep, particle_x, rest_x, bond_start, bond_nbr, bond_wv,
+                 bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, s, nbr):
+    """Rows of s and nbr for the intact bonds p -> q with q > p: eta, Ybar_p = Fbar_p xi, Ybar_q = Fbar_q xi
+    (eta for a crack-surface particle), w V_q, 1 / |xi|, c_q, 1 + e_p and q. Returns their count."""
+    r0, r1, r2 = rest_x[p, 0], rest_x[p, 1], rest_x[p, 2]
+    p0, p1, p2 = particle_x[p, 0], particle_x[p, 1], particle_x[p, 2]
+    f = p if has_mu else 0
+    a00, a01, a02 = particle_Fbar[f, 0, 0], particle_Fbar[f, 0, 1], particle_Fbar[f, 0, 2]
+    a10, a11, a12 = particle_Fbar[f, 1, 0], particle_Fbar[f, 1, 1], particle_Fbar[f, 1, 2]
+    a20, a21, a22 = particle_Fbar[f, 2, 0], particle_Fbar[f, 2, 1], particle_Fbar[f, 2, 2]
+    p_crack = has_crack and particle_crack[p] != 0
+    m = 0
+    for b in range(bond_start[p], bond_start[p + 1]):
+        q = bond_nbr[b]
+        if q < p or (has_active and bond_active[b] == 0):
+            continue
+        e0, e1, e2 = particle_x[q, 0] - p0, particle_x[q, 1] - p1, particle_x[q, 2] - p2
+        s[0, m], s[1, m], s[2, m] = e0, e1, e2
+        if has_mu:
+            x0, x1, x2 = rest_x[q, 0] - r0, rest_x[q, 1] - r1, rest_x[q, 2] - r2
+            if p_crack:
                 s[3, m], s[4, m], s[5, m] = e0, e1, e2
-                if has_mu:
-                    if p_crack:
-                        s[6, m], s[7, m], s[8, m] = e0, e1, e2
-                    else:
-                        s[6, m] = a00 * x0 + a01 * x1 + a02 * x2
-                        s[7, m] = a10 * x0 + a11 * x1 + a12 * x2
-                        s[8, m] = a20 * x0 + a21 * x1 + a22 * x2
-                    if has_crack and particle_crack[q] != 0:
-                        s[9, m], s[10, m], s[11, m] = e0, e1, e2
-                    else:
-                        for i in range(3):
-                            s[9 + i, m] = (particle_Fbar[q, i, 0] * x0 + particle_Fbar[q, i, 1] * x1
-                                           + particle_Fbar[q, i, 2] * x2)
-                s[12, m] = particle_volume[q]
-                s[13, m] = particle_coef[q]
-                s[14, m] = 1.0 + bond_ep[b] if has_ep else 1.0
-                m += 1
-            cp = particle_coef[p]
+            else:
+                s[3, m] = a00 * x0 + a01 * x1 + a02 * x2
+                s[4, m] = a10 * x0 + a11 * x1 + a12 * x2
+                s[5, m] = a20 * x0 + a21 * x1 + a22 * x2
+            if has_crack and particle_crack[q] != 0:
+                s[6, m], s[7, m], s[8, m] = e0, e1, e2
+            else:
+                for i in range(3):
+                    s[6 + i, m] = particle_Fbar[q, i, 0] * x0 + particle_Fbar[q, i, 1] * x1 + particle_Fbar[q, i, 2] * x2
+        s[9, m] = bond_wv[b]
+        s[10, m] = bond_inv_len[b]
+        s[11, m] = particle_coef[q]
+        s[12, m] = 1.0 + bond_ep[b] if has_ep else 1.0
+        nbr[m] = q
+        m += 1
+    return m
+
+
+@njit(parallel=True, cache=True, fastmath=VECTOR_MATH, error_model="numpy")
+def elastic_forces(start, end, lam, mu, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_wv,
+                   bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, force_private):
+    """Bond forces (eqs. 6-7, 9) of particles start..end-1 of one elastic or plastic body -> force_private, one
+    force array per thread (sum them with `sum_forces`).
+
+    Each bond pair is evaluated once, at its lower-index particle p: G = V_p V_q (T<p,q> - T<q,p>) is added to p
+    and subtracted from q, so the pair's forces are equal and opposite to the bit (families are symmetric:
+    build_families stores both directions, cuts and fracture remove both). Thread t takes a fixed particle range
+    and scatters into force_private[t] only: no races, and a fixed order. Per particle, a gather loop fills the
+    scratch rows (`gather_pairs`), a loop without gathers evaluates the strains as SIMD, and a third loop scatters
+    -G onto the q. Each strain (|y|/|xi| - 1 - e_p)/|y| is 1/|xi| - (1 + e_p)/|y|, and the three 1/|y| of a pair
+    share one division: 1/|eta| = |Ybar_p| |Ybar_q| / (|eta| |Ybar_p| |Ybar_q|), and so on."""
+    has_active, has_crack = bond_active.shape[0] > 0, particle_crack.shape[0] > 0
+    has_ep, has_mu = bond_ep.shape[0] > 0, mu > 0.0
+    nt, n = force_private.shape[0], end - start
+    for t in prange(nt):
+        f = force_private[t]
+        f[start:end, :] = 0.0
+        lo, hi = start + t * n // nt, start + (t + 1) * n // nt
+        width = chunk_width(bond_start, lo, hi)
+        s = np.zeros((13, width))  # eta, Ybar_p, Ybar_q (3 each), w V_q, 1 / |xi|, c_q, 1 + e_p
+        pair = np.zeros((3, width))  # G of each pair
+        nbr = np.zeros(width, dtype=np.int64)
+        for p in range(lo, hi):
+            m = gather_pairs(p, has_mu, has_crack, has_active, has_ep, particle_x, rest_x, bond_start, bond_nbr,
+                             bond_wv, bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef,
+                             particle_Fbar, s, nbr)
+            cp, vp = particle_coef[p], particle_volume[p]
             f0 = f1 = f2 = 0.0
             for k in range(m):
-                r = math.sqrt(s[0, k] * s[0, k] + s[1, k] * s[1, k] + s[2, k] * s[2, k])
-                ir = 1.0 / r
-                a = (1.0 - r * inv_delta) * ir * s[12, k]
-                e0, e1, e2 = s[3, k], s[4, k], s[5, k]
-                g = a * lam * (cp + s[13, k]) * (ir - s[14, k] / math.sqrt(max(e0 * e0 + e1 * e1 + e2 * e2, TINY)))
-                f0 += g * e0
-                f1 += g * e1
-                f2 += g * e2
+                ir = s[10, k]
+                a = s[9, k] * ir * vp
+                e0, e1, e2 = s[0, k], s[1, k], s[2, k]
+                le = math.sqrt(max(e0 * e0 + e1 * e1 + e2 * e2, TINY))
                 if has_mu:
-                    y0, y1, y2 = s[6, k], s[7, k], s[8, k]
-                    g = a * 2.0 * mu * cp * (ir - s[14, k] / math.sqrt(max(y0 * y0 + y1 * y1 + y2 * y2, TINY)))
-                    f0 += g * y0
-                    f1 += g * y1
-                    f2 += g * y2
-                    y0, y1, y2 = s[9, k], s[10, k], s[11, k]
-                    g = a * 2.0 * mu * s[13, k] * (ir - s[14, k] / math.sqrt(max(y0 * y0 + y1 * y1 + y2 * y2, TINY)))
-                    f0 += g * y0
-                    f1 += g * y1
-                    f2 += g * y2
-            vp = particle_volume[p]
-            particle_force[p, 0] = f0 * vp
-            particle_force[p, 1] = f1 * vp
-            particle_force[p, 2] = f2 * vp
+                    y0, y1, y2, z0, z1, z2 = s[3, k], s[4, k], s[5, k], s[6, k], s[7, k], s[8, k]
+                    ly = math.sqrt(max(y0 * y0 + y1 * y1 + y2 * y2, TINY))
+                    lz = math.sqrt(max(z0 * z0 + z1 * z1 + z2 * z2, TINY))
+                    inv = s[12, k] / max(le * ly * lz, TINY)
+                    gy = a * 2.0 * mu * cp * (ir - inv * le * lz)
+                    gz = a * 2.0 * mu * s[11, k] * (ir - inv * le * ly)
+                    g = a * lam * (cp + s[11, k]) * (ir - inv * ly * lz)
+                    g0, g1, g2 = g * e0 + gy * y0 + gz * z0, g * e1 + gy * y1 + gz * z1, g * e2 + gy * y2 + gz * z2
+                else:
+                    g = a * lam * (cp + s[11, k]) * (ir - s[12, k] / le)
+                    g0, g1, g2 = g * e0, g * e1, g * e2
+                pair[0, k], pair[1, k], pair[2, k] = g0, g1, g2
+                f0 += g0
+                f1 += g1
+                f2 += g2
+            for k in range(m):
+                q = nbr[k]
+                f[q, 0] -= pair[0, k]
+                f[q, 1] -= pair[1, k]
+                f[q, 2] -= pair[2, k]
+            f[p, 0] += f0
+            f[p, 1] += f1
+            f[p, 2] += f2
+
+
+@njit(parallel=True, cache=True)
+def sum_forces(start, end, force_private, particle_force):
+    """particle_force = the threads' force arrays summed in thread order (a fixed order: reproducible)."""
+    for p in prange(start, end):
+        for a in range(3):
+            acc = 0.0
+            for t in range(force_private.shape[0]):
+                acc += force_private[t, p, a]
+            particle_force[p, a] = acc
 
 
 @njit(parallel=True, cache=True)
@@ -152,9 +185,10 @@ def forces(model, state, body: int, dt: float):
     start, end = model.body_ranges[body]
     mat = model.materials[body]
     fbar = state.particle_Fbar if len(state.particle_Fbar) else DUMMY_FBAR
-    elastic_forces(start, end, mat.lam, mat.mu, model.body_horizon[body], state.particle_x, model.rest_x,
-                   model.particle_volume, state.bond_start, state.bond_nbr, state.bond_active, state.bond_ep,
-                   state.particle_crack, model.particle_coef, fbar, state.particle_force, particle_chunks())
+    elastic_forces(start, end, mat.lam, mat.mu, state.particle_x, model.rest_x, model.particle_volume,
+                   state.bond_start, state.bond_nbr, state.bond_wv, state.bond_inv_len, state.bond_active,
+                   state.bond_ep, state.particle_crack, model.particle_coef, fbar, state.particle_force_private)
+    sum_forces(start, end, state.particle_force_private, state.particle_force)
 
 
 def energy(model, state, body: int) -> float:

@@ -226,7 +226,8 @@ def refresh_families(model, state, body: int, dt: float):
     limit = mat.rebuild_distance * model.body_spacing[body]
     if end == start or np.einsum("ij,ij->i", moved, moved).max() <= limit * limit:
         return
-    names = [k for k in ("bond_len0", "bond_force_el", "bond_force_visc", "bond_ep", "bond_active")
+    names = [k for k in ("bond_len0", "bond_force_el", "bond_force_visc", "bond_ep", "bond_active", "bond_wv",
+                         "bond_inv_len")
              if len(getattr(state, k))]
     state.bond_start, state.bond_nbr, arrays = rebuild_families(
         state.particle_x, state.bond_start, state.bond_nbr, {k: getattr(state, k) for k in names},
