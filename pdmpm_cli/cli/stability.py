@@ -22,14 +22,18 @@ def fmt(value) -> str:
     return "" if value is None else str(value)
 
 
-def write_csv(path: Path, columns, rows):
+def write_tables(path: Path, columns, rows):
+    """path.csv and path.md (a Markdown table, for docs/results.md) with the given columns."""
     import csv
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
+    with open(path.with_suffix(".csv"), "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
         writer.writeheader()
         writer.writerows({k: fmt(v) for k, v in row.items()} for row in rows)
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(fmt(row.get(k)).replace("|", "/") for k in columns) + " |" for row in rows]
+    path.with_suffix(".md").write_text("\n".join(lines) + "\n")
 
 
 def stability(
@@ -42,7 +46,7 @@ def stability(
         "--thresholds/--no-thresholds", help="Also bisect a forced constant dt for the largest stable step on the "
         "representative cases, against the predicted bound.")] = True,
     out: Annotated[Path, typer.Option(
-        "--out", "-o", help="Folder for stability.csv and thresholds.csv.")] = Path("outputs/stability"),
+        "--out", "-o", help="Folder for stability.csv / .md and thresholds.csv / .md.")] = Path("outputs/stability"),
     list_: Annotated[bool, typer.Option("--list", help="List the cases and what each probes, and exit.")] = False,
 ):
     """Run the stability sweep with the automatic time step and classify each case (stable, nan, outside,
@@ -77,7 +81,7 @@ def stability(
         colour = COLOUR.get(row["class"], "red")
         table.add_row(*(f"[{colour}]{fmt(row.get(k))}[/]" if k == "class" else escape(fmt(row.get(k))) for k in shown))
     Console(highlight=False).print(table)
-    write_csv(out / "stability.csv", COLUMNS, rows)
+    write_tables(out / "stability", COLUMNS, rows)
     counts = {}
     for row in rows:
         counts[row["class"]] = counts.get(row["class"], 0) + 1
@@ -99,7 +103,7 @@ def stability(
             for r in results:
                 table.add_row(*(escape(fmt(r[k])) for k in THRESHOLD_COLUMNS))
             Console(highlight=False).print(table)
-            write_csv(out / "thresholds.csv", THRESHOLD_COLUMNS, results)
+            write_tables(out / "thresholds", THRESHOLD_COLUMNS, results)
             off = [r["case"] for r in results if not r["within_2x"]]
             console.print(f"thresholds -> {out / 'thresholds.csv'}"
                           + (f"; [yellow]not within 2x of the bound: {', '.join(off)}[/]" if off else
