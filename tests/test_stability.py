@@ -41,7 +41,7 @@ def test_quick_set_is_stable_with_the_automatic_step():
     assert not bad
     for name, r in rows.items():
         if r["class"] == "stable":
-            assert r["energy_ratio"] <= st.GROWTH and r["dt_ratio"] <= 1.0 and r["cells_per_step"] < 1.0, name
+            assert r["energy_ratio"] <= st.GROWTH and r["dt_ratio"] <= 0.7 and r["cells_per_step"] < 2.0, name
     assert rows["shatter_1e-4"]["isolated"] > 0  # the case did break every bond of some particles
 
 

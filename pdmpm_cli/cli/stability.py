@@ -10,7 +10,8 @@ from rich.markup import escape
 from rich.table import Table
 
 COLUMNS = ("case", "category", "parameter", "class", "energy_ratio", "energy_end", "max_speed", "cells_per_step",
-           "steps", "dt_ratio", "dt_pred", "dt_bond", "particles", "isolated", "forced", "dt_factor", "wall_s", "message")
+           "steps", "dt_ratio", "dt_pred", "dt_bond", "particles", "isolated", "forced", "dt_factor", "wall_s",
+           "message")
 THRESHOLD_COLUMNS = ("case", "category", "parameter", "dt_pred", "dt_bond", "dt_auto", "measured", "unstable",
                      "bond_units", "v0_cells", "failure", "within_2x", "runs")
 COLOUR = {"stable": "green", "refused": "cyan"}
@@ -85,7 +86,8 @@ def stability(
     counts = {}
     for row in rows:
         counts[row["class"]] = counts.get(row["class"], 0) + 1
-    console.print("classes: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())) + f" -> {out / 'stability.csv'}")
+    console.print("classes: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+                  + f" -> {out / 'stability.csv'}")
 
     if thresholds:
         names = [n for n in (st.QUICK_THRESHOLD if quick and not case else st.THRESHOLD_CASES)

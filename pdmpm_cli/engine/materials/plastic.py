@@ -3,12 +3,15 @@
 Forces are the elastic ones of eq. 9 with the bond's plastic strain e_p subtracted (elastic.py takes bond_ep).
 Each step, before the forces, every bond is tested against the yield function of eq. 10,
 
-    E_dev = M (e_dev - e_p),   f = E_dev^2 / 2 - psi_p,   M = lam + 2 mu,   e_dev = s - e_iso,
+    E_dev = M (e_dev - e_p),   f = E_dev^2 / 2 - psi_p,   M = lam + 2 mu,
+    e_dev = (lam s + mu (sbar_p + sbar_q)) / M - e_iso,
 
 and returned exactly onto f = 0 when it is outside (eq. 11 corrected: divide by M, not lam / |X|):
 
     e_p += (E_dev - sqrt(2 psi_p) sign(E_dev)) / M.
 
+(lam s + mu (sbar_p + sbar_q)) / M is the strain the force of eq. 9 acts on (s from eta, sbar from Fbar xi), so f = 0
+is the force's yield limit; measuring s alone let a flattened soft block gain strain energy until it blew up.
 e_iso is the isotropic part of the bond strain: the mean of the pair's two particle dilatations / 3, where a
 particle's dilatation theta_p = 3 sum_q w |xi|^2 s V_q / sum_q w |xi|^2 V_q (the LPS dilatation written with
 strains; unlike tr(Fbar) - 3 it is zero under any rigid rotation and defined for cloth). Using the pair mean
@@ -70,7 +73,8 @@ def plastic_return_map(start, end, lam, mu, psi, particle_x, rest_x, bond_start,
             strain = s
             if mu > 0.0:
                 sp = s if p_crack else averaged_bond(particle_Fbar[p], x0, x1, x2)[3] / r - 1.0
-                sq = s if has_crack and particle_crack[q] != 0 else averaged_bond(particle_Fbar[q], x0, x1, x2)[3] / r - 1.0
+                q_crack = has_crack and particle_crack[q] != 0
+                sq = s if q_crack else averaged_bond(particle_Fbar[q], x0, x1, x2)[3] / r - 1.0
                 strain = (lam * s + mu * (sp + sq)) / modulus
             e_dev = strain - (tp + particle_theta[q]) / 6.0
             e = modulus * (e_dev - bond_ep[b])
