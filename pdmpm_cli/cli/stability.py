@@ -41,7 +41,7 @@ def stability(
     case: Annotated[list[str], typer.Option(
         "--case", "-c", help="Run only this case (repeat for several); default all, or the --quick set.")] = [],
     quick: Annotated[bool, typer.Option(
-        "--quick", help="A reduced set (one or two cases per category, one threshold): about a minute on one core.")
+        "--quick", help="A reduced set (12 cases, one threshold): seconds on one core once the kernels are compiled.")
     ] = False,
     thresholds: Annotated[bool, typer.Option(
         "--thresholds/--no-thresholds", help="Also bisect a forced constant dt for the largest stable step on the "
@@ -51,8 +51,8 @@ def stability(
     list_: Annotated[bool, typer.Option("--list", help="List the cases and what each probes, and exit.")] = False,
 ):
     """Run the stability sweep with the automatic time step and classify each case (stable, nan, outside,
-    energy growth, refused); then bisect forced oversize steps (flagged 'forced', never reachable from
-    `pdmpm run`) for the measured threshold against the predicted bound min(dx / (c + |v0|), dt_bond).
+    energy, refused, error); then bisect forced oversize steps (flagged 'forced', never reachable from
+    `pdmpm run`) for the measured threshold against the predicted bound dx / c (c the P-wave speed).
     Exit code 1 if any automatic-step case is unstable."""
     from pdmpm_cli import stability as st
 
