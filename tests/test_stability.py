@@ -59,8 +59,24 @@ def test_command_writes_tables_and_exit_codes(tmp_path, monkeypatch):
     rows = list(csv.DictReader(open(out / "stability.csv")))
     assert [row["class"] for row in rows] == ["stable", "refused"]
     assert "classes: refused 1, stable 1" in r.stderr
+    r = pdmpm("stability", "-c", "stiff_1e6", "--out", out)  # one threshold: every forced run is flagged
+    assert r.returncode == 0, r.stderr
+    forced = list(csv.DictReader(open(out / "forced.csv")))
+    assert len(forced) >= 3 and all(row["forced"] == "True" for row in forced)
+    assert any(row["class"] != "stable" for row in forced)
     r = pdmpm("stability", "--list")
     assert r.returncode == 0 and "impact_floor_10" in r.stdout
+
+
+def test_help_imports_no_engine():
+    """`pdmpm stability --help` stays instant: the command module imports neither numba nor numpy."""
+    import subprocess
+    import sys
+
+    code = "import sys, pdmpm_cli.cli.app; print(sorted({'numba', 'numpy'} & set(sys.modules)))"
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True).stdout.strip() == "[]"
+    r = pdmpm("stability", "--help")
+    assert r.returncode == 0 and "--quick" in r.stdout
 
 
 def test_command_exits_1_on_an_unstable_case(tmp_path, monkeypatch):

@@ -47,7 +47,7 @@ def stability(
         "--thresholds/--no-thresholds", help="Also bisect a forced constant dt for the largest stable step on the "
         "representative cases, against the predicted bound.")] = True,
     out: Annotated[Path, typer.Option(
-        "--out", "-o", help="Folder for stability.csv / .md and thresholds.csv / .md.")] = Path("outputs/stability"),
+        "--out", "-o", help="Folder for stability, thresholds and forced (every forced run) .csv / .md.")] = Path("outputs/stability"),
     list_: Annotated[bool, typer.Option("--list", help="List the cases and what each probes, and exit.")] = False,
 ):
     """Run the stability sweep with the automatic time step and classify each case (stable, nan, outside,
@@ -92,13 +92,18 @@ def stability(
     if thresholds:
         names = [n for n in (st.QUICK_THRESHOLD if quick and not case else st.THRESHOLD_CASES)
                  if not case or n in case]
-        results = []
+        results, forced = [], []
+
+        def on_run(row):
+            forced.append(row)
+            console.print(f"  forced {row['dt_factor']:.3g} x dt_pred: {row['class']}")
+
         for c in st.select(names):
             console.print(f"[bold]threshold[/] {escape(c.name)}: forced dt in [{st.LO:g}, {st.HI:g}] x dt_pred "
                           f"[yellow](oversize steps, on purpose)[/]")
-            results.append(st.threshold(c, on_run=lambda r: console.print(
-                f"  forced {r['dt_factor']:.3g} x dt_pred: {r['class']}")))
+            results.append(st.threshold(c, on_run=on_run))
         if results:
+            write_tables(out / "forced", COLUMNS, forced)  # every forced run, flagged forced = True
             table = Table(title="time-step threshold: largest stable forced dt / predicted bound")
             for column in THRESHOLD_COLUMNS:
                 table.add_column(column, overflow="fold")
