@@ -181,6 +181,8 @@ def cut_clusters(delta, members, cluster_start, particle_x, bond_start, bond_nbr
         if bond_active[b0] == 0:
             continue
         n0, n1, n2, ln = bond_vector(particle_x, top, bond_nbr[b0])
+        if ln == 0.0:  # its ends coincide (both pushed onto one collider point): no direction to cut along yet
+            continue
         n0, n1, n2 = n0 / ln, n1 / ln, n2 / ln
         c[:] = 0.0
         for p in mem:

@@ -179,7 +179,8 @@ class Solver:
 
     def start(self, state: State):
         """Set the energy budget the runaway check measures against [J]: what gravity (over the domain's
-        largest extent), the colliders' motion (and the wind's) and the initial motion can legitimately supply."""
+        largest extent), the colliders' motion (and the wind's) and the initial motion can legitimately supply;
+        and the speed the first step's CFL bound uses."""
         for i, b in enumerate(self.plan.bodies):
             if MATERIALS[b.model].init is not None:
                 MATERIALS[b.model].init(self.model, state, i)
@@ -191,6 +192,10 @@ class Solver:
         self.energy_budget = self.kinetic_energy(state) + mass * (np.linalg.norm(m.gravity) * extent + v_coll**2)
         self.energy_budget += self.strain_energy(state) + 1e-12 * mass
         self.energy_prev = self.energy_budget
+        # The first step's CFL bound sees the initial speeds: a body thrown at 10 dx / dt otherwise moved 10 cells in
+        # its first step (stability case impact_floor_10).
+        v2 = np.einsum("ij,ij->i", state.particle_v, state.particle_v)
+        self.vmax = float(np.sqrt(v2.max())) if len(v2) else 0.0
 
     def check_energy(self, state: State):
         """Blow-up test, once per frame: kinetic energy may not exceed 10x the larger of the budget and the

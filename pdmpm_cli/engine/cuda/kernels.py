@@ -138,21 +138,29 @@ def bond_dilatation(start, end, delta, particle_x, rest_x, particle_volume, bond
 
 
 @cuda.jit(cache=True)
-def plastic_return_map(start, end, modulus, psi, particle_x, rest_x, bond_start, bond_nbr, particle_theta, bond_ep,
-                       stats):
-    """Eqs. 10-11: project each yielding bond of particles start..end-1 onto f = 0 (bond_ep in place); the largest
-    f / psi_p after the update goes to stats[STAT_YIELD]. Each stored direction of a bond has its own thread, and
-    both see the same pair mean of theta, so e_p stays equal on the two."""
+def plastic_return_map(start, end, lam, mu, psi, particle_x, rest_x, bond_start, bond_nbr, particle_Fbar,
+                       particle_theta, bond_ep, stats):
+    """Eqs. 10-11: project each yielding bond of particles start..end-1 onto f = 0 (bond_ep in place), with the
+    strain the force acts on, (lam s + mu (sbar_p + sbar_q)) / M (the CPU kernel's); the largest f / psi_p after
+    the update goes to stats[STAT_YIELD]. Each stored direction of a bond has its own thread, and both see the same
+    strain and pair mean of theta, so e_p stays equal on the two."""
     p = start + cuda.grid(1)
     if p >= end:
         return
+    modulus = lam + 2.0 * mu
     limit = math.sqrt(2.0 * psi)
     tp = particle_theta[p]
     fmax = -1.0
     for b in range(bond_start[p], bond_start[p + 1]):
         q = bond_nbr[b]
-        s = d_bond_vector(particle_x, p, q)[3] / d_bond_vector(rest_x, p, q)[3] - 1.0
-        e_dev = s - (tp + particle_theta[q]) / 6.0
+        x0, x1, x2, r = d_bond_vector(rest_x, p, q)
+        s = d_bond_vector(particle_x, p, q)[3] / r - 1.0
+        strain = s
+        if mu > 0.0:
+            sp = d_averaged_bond(particle_Fbar[p], x0, x1, x2)[3] / r - 1.0
+            sq = d_averaged_bond(particle_Fbar[q], x0, x1, x2)[3] / r - 1.0
+            strain = (lam * s + mu * (sp + sq)) / modulus
+        e_dev = strain - (tp + particle_theta[q]) / 6.0
         e = modulus * (e_dev - bond_ep[b])
         if abs(e) > limit:
             bond_ep[b] += (e - math.copysign(limit, e)) / modulus

@@ -130,8 +130,9 @@ class CudaSolver(Solver):
         mat = m.materials[body]
         launch(k.bond_dilatation, end - start, start, end, m.body_horizon[body], d["particle_x"], d["rest_x"],
                d["particle_volume"], d["bond_start"], d["bond_nbr"], d["particle_theta"])
-        launch(k.plastic_return_map, end - start, start, end, mat.lam + 2.0 * mat.mu, mat.yield_psi, d["particle_x"],
-               d["rest_x"], d["bond_start"], d["bond_nbr"], d["particle_theta"], d["bond_ep"], d["stats"])
+        launch(k.plastic_return_map, end - start, start, end, mat.lam, mat.mu, mat.yield_psi, d["particle_x"],
+               d["rest_x"], d["bond_start"], d["bond_nbr"], d["particle_Fbar"], d["particle_theta"], d["bond_ep"],
+               d["stats"])
 
     def gpu_bonds(self, body: int, dt: float):
         d, m = self.dev, self.model
