@@ -5,7 +5,7 @@ import sys
 import typer
 from rich.console import Console
 
-from pdmpm_cli.cli import render, run, scenes, schema, sweep, validate
+from pdmpm_cli.cli import render, run, scenes, schema, study, sweep, validate
 from pdmpm_cli.errors import PdmpmError
 
 app = typer.Typer(
@@ -21,6 +21,7 @@ app.command("schema")(schema.schema)
 app.command("scenes")(scenes.scenes)
 app.command("render")(render.render)
 app.command("sweep")(sweep.sweep)
+app.command("study")(study.study)
 
 err_console = Console(stderr=True, highlight=False)
 
