@@ -41,11 +41,12 @@ def test_bar_space_order_reduced(tmp_path):
 
 
 def test_cantilever_space_order_reduced():
-    """Cloud cantilever L/H = 5, 3.8 to 6 particles through the thickness: the tip deflection's error against
-    Timoshenko falls (0.26, 0.13, 0.078 measured) with a fitted order of about 2.7 (band 1.5-4)."""
+    """Cloud cantilever L/H = 5, 4, 5 and 6 particles through the thickness: the tip deflection's error against
+    Timoshenko falls (0.24, 0.117, 0.078 measured) with a fitted order of about 2.8 (band 1.5-4)."""
     study = problem_study(CANTILEVER, levels=3, time_levels=0, finest=0.1 / 3, ratio=1.25)
     show(study)
     errors = [r.error for r in study.runs]
+    assert [round(0.2 / r.cell_size_m) for r in study.runs] == [4, 5, 6]
     assert errors[0] > errors[1] > errors[2]
     assert errors[2] == pytest.approx(0.078, abs=0.02)
     p, _ = study.slope("space", "h")
@@ -61,7 +62,7 @@ def test_free_fall_time_ladder_is_first_order():
     assert n == 2 and p_time == pytest.approx(1.0, abs=0.05)
     assert study.slope("space", "h")[0] == pytest.approx(1.0, abs=0.15)
     time_rows = [r for r in study.runs if r.ladder == "time"]
-    assert [r.steps for r in time_rows][1] >= 2 * time_rows[0].steps - 2
+    assert time_rows[1].steps > 1.9 * time_rows[0].steps
     assert math.isnan(time_rows[-1].error)
     dt = time_rows[0].dt_s
     assert time_rows[0].error * FREE_FALL.scale == pytest.approx(9.81 * 0.3 * dt / 4, rel=0.1)  # g t (dt - dt/2)/2

@@ -43,7 +43,7 @@ class Problem:
 # ---------------------------------------------------------------- vibrating bar (Sulsky 1995)
 
 BAR_LENGTH, BAR_E, BAR_V0 = 25.0, 100.0, 0.1
-BAR_PERIOD = 4 * BAR_LENGTH / np.sqrt(BAR_E)  # 10 s: omega = (pi / 2L) sqrt(E / rho)
+BAR_PERIOD = 4 * BAR_LENGTH / BAR_E**0.5  # 10 s: omega = (pi / 2L) sqrt(E / rho)
 
 
 def bar_scene(cell: float, periods: float = 2.0) -> dict:
@@ -168,6 +168,12 @@ def tip_sag(sim: Sim, L: float) -> np.ndarray:
     return np.array([-(sim.state.particle_x[tip, 1] - x0[tip, 1]).mean()])
 
 
+def whole_layers(dx: float, H: float) -> float:
+    """The cell size nearest dx whose spacing dx / 2 fits a whole number of times into the thickness H [m]: with a
+    partial layer of jittered cells, 4.8 particles through H bend 2x further from the beam value than 5 do."""
+    return 2 * H / max(2, round(2 * H / dx))
+
+
 CANTILEVER_L, CANTILEVER_H, CANTILEVER_E = 0.5, 0.1, 1e7
 CANTILEVER_REF = timoshenko(CANTILEVER_L, CANTILEVER_H, CANTILEVER_E)
 CANTILEVER = Problem(
@@ -176,7 +182,8 @@ CANTILEVER = Problem(
     quantity="tip deflection [m]", reference=np.array([CANTILEVER_REF]),
     reference_name="Timoshenko q L^4/(8 E I) + q L^2/(2 kappa G A)", scale=CANTILEVER_REF, finest=0.02,
     ratio=1.25,
-    scene=lambda dx: cantilever_scene("cloud", CANTILEVER_L, CANTILEVER_H, dx, CANTILEVER_E),
+    scene=lambda dx: cantilever_scene("cloud", CANTILEVER_L, CANTILEVER_H, whole_layers(dx, CANTILEVER_H),
+                                      CANTILEVER_E),
     measure=lambda sim: tip_sag(sim, CANTILEVER_L))
 
 
