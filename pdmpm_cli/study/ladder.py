@@ -22,7 +22,6 @@ import numpy as np
 
 from pdmpm_cli.engine.model import State
 from pdmpm_cli.engine.solver import Solver
-from pdmpm_cli.errors import InputError
 from pdmpm_cli.io.atomic import atomic_write_text
 from pdmpm_cli.runner import Prepared, prepare
 from pdmpm_cli.scene.loader import load_scene
