@@ -118,7 +118,8 @@ def test_study_command_on_a_scene_file(tmp_path):
     assert (out / "study.png").stat().st_size > 1000
 
 
-def test_study_command_bad_input(tmp_path):
+def test_study_command_exit_codes(tmp_path):
+    """2 for bad input (unknown problem, invalid scene, --set on a built-in problem), 1 for a failed run."""
     r = pdmpm("study", "vibrating_string")
     assert r.returncode == 2
     assert "'vibrating_string' is neither a built-in problem (bar, cantilever, free_fall) nor a scene file" in r.stderr
@@ -128,6 +129,10 @@ def test_study_command_bad_input(tmp_path):
     assert r.returncode == 2 and "simulation.duration" in r.stderr
     r = pdmpm("study", "bar", "--set", "grid.cell_size=1")
     assert r.returncode == 2 and "--set and --variant apply to scene files" in r.stderr
+    thrown = tmp_path / "thrown.yaml"
+    thrown.write_text(SMALL.replace("material: {model: elastic", "velocity: [0, 40, 0]\n    material: {model: elastic"))
+    r = pdmpm("study", thrown, "--levels", "2", "--ratio", "1.1", "--time-levels", "0", "--out", tmp_path / "out")
+    assert r.returncode == 1 and "left the simulation domain" in r.stderr
 
 
 @pytest.mark.slow
