@@ -264,10 +264,13 @@ def plot(path: Path, study: Study) -> Path:
     for ax, ladder in zip(axes[1:], ladders):
         x = "h" if ladder == "space" else "dt"
         rows = [r for r in study.runs if r.ladder == ladder and np.isfinite(r.error) and r.error > 0]
-        xs = [r.cell_size_m if x == "h" else r.dt_s for r in rows]
+        xs, ys = [r.cell_size_m if x == "h" else r.dt_s for r in rows], [r.error for r in rows]
         p, _ = study.slope(ladder, x)
-        ax.loglog(xs, [r.error for r in rows], "o-" if x == "h" else "s--", label=f"slope {p:.2f}")
+        ax.loglog(xs, ys, "o-" if x == "h" else "s--", label=f"slope {p:.2f}")
         ax.set(xlabel="cell size dx [m]" if x == "h" else "mean dt [s]", ylabel="error [-]", title=f"{ladder} ladder")
+        ax.minorticks_off()  # ticks at the runs: a ladder often spans less than a decade
+        ax.set_xticks(xs, [f"{v:.3g}" for v in xs])
+        ax.set_yticks(ys, [f"{v:.3g}" for v in ys])
     for ax in axes:
         ax.grid(True, which="both", alpha=0.3)
         ax.legend()
