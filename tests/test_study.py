@@ -138,7 +138,7 @@ def test_study_command_exit_codes(tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["bar", "cantilever"])
 def test_full_study(name, tmp_path):
-    """The studies in docs/results.md (bar: 4 levels, 4 time levels, about 3 min; cantilever: 4 levels, 3 time
+    """The studies in docs/results.md (bar: 4 levels, 4 time levels, 108 s; cantilever: 4 levels, 3 time
     levels, about 10 min). Space orders measured 1.17 (bar) and 2.14 (cantilever). Neither converges in dt at
     fixed dx (measured orders 0.02 and -0.01: each halving of dt changes the result by the same amount,
     docs/results.md); the last assertion guards that present state, and should fail once the per-step effect is

@@ -5,8 +5,8 @@ The space ladder scales the grid cell size dx by a constant ratio; particle spac
 spacing stays the same fraction of the cell, the horizon the same multiple of the spacing), and so does dt, since
 it is set by the CFL and bond bounds, both proportional to dx. The time ladder reruns the finest grid with
 simulation.dt forced to dt/2, dt/4, ..., where dt is that run's largest step; each of its errors is the difference
-from the run at the next smaller dt, which leaves the space error out. Wall time counts the stepping only (after a warm-up run loads the
-compiled kernels), not the discretisation.
+from the run at the next smaller dt, which leaves the space error out. Wall time counts the stepping only (after a
+warm-up run loads the compiled kernels), not the discretisation.
 """
 
 from __future__ import annotations

@@ -2,9 +2,9 @@
 
 A `Problem` turns a grid cell size dx [m] (particle spacing dx / 2, horizon 2 spacings: the defaults) into a scene
 dict, and measures an array from the finished run (a number, or a signal at the frame times) that has an analytic
-value. The error of a run is the RMS difference from that value (or from another run) over the problem's scale. Moduli follow our calibration
-(docs/method.md): a cloud body with lam = mu = M / 3 has E = 5 M / 6 and nu = 1/4; a laterally confined column's
-modulus is M = lam + 2 mu.
+value. The error of a run is the RMS difference from that value (or from another run) over the problem's scale.
+Moduli follow our calibration (docs/method.md): a cloud body with lam = mu = M / 3 has E = 5 M / 6 and nu = 1/4;
+a laterally confined column's modulus is M = lam + 2 mu.
 """
 
 from collections.abc import Callable
@@ -108,7 +108,8 @@ def period(t: np.ndarray, v: np.ndarray) -> float:
 BAR_TIMES = bar_frames(1.5 * BAR_PERIOD)
 BAR = Problem(
     name="bar", description="vibrating bar (Sulsky 1995), confined column 4 cells wide, 1.5 periods: v_com(t)",
-    quantity="period [s]", reference=bar_exact(BAR_TIMES), reference_name="(2 v0 / pi) cos(omega t), RMS over amplitude",
+    quantity="period [s]", reference=bar_exact(BAR_TIMES),
+    reference_name="(2 v0 / pi) cos(omega t), RMS over amplitude",
     scale=2 * BAR_V0 / np.pi, finest=1.25 / np.sqrt(2), ratio=np.sqrt(2),
     scene=lambda dx: bar_scene(dx, periods=1.5), measure=bar_com_velocity,
     summary=lambda v: period(BAR_TIMES, v))
