@@ -12,7 +12,7 @@ from rich.table import Table
 
 from pdmpm_cli.cli.options import SetOpt, VariantOpt
 
-PROBLEM_NAMES = ("bar", "cantilever", "free_fall")  # pdmpm_cli.study.problems.PROBLEMS (kept here: --help is instant)
+PROBLEM_NAMES = ("bar", "cantilever", "column", "free_fall")  # pdmpm_cli.study.problems.PROBLEMS (kept here: --help is instant)
 
 
 def study(

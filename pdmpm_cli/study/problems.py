@@ -220,4 +220,48 @@ FREE_FALL = Problem(
     scale=0.5 * G * FALL_TIME**2, finest=0.025, ratio=np.sqrt(2),
     scene=free_fall_scene, measure=fall_drop)
 
-PROBLEMS = {p.name: p for p in (BAR, CANTILEVER, FREE_FALL)}
+# ---------------------------------------------------------------- self-weight column
+
+COLUMN_H, COLUMN_M = 1.0, 1e6  # height [m], confined modulus lam + 2 mu [Pa]
+COLUMN_SETTLE = G * RHO * COLUMN_H**2 / (2 * COLUMN_M)  # top settlement: integral of rho g (H0 - Y) / M [m]
+
+
+def column_scene(cell: float, periods: float = 1.5) -> dict:
+    """A laterally confined column (slip walls, 4 cells wide) standing on a sticky floor under gravity, released
+    from its unstressed shape. sigma_yy(Y) = -rho g (H0 - Y) exactly, so the top settles rho g H0^2 / (2 M). Still
+    air at drag 2 omega_1 (omega_1 = pi c / 2 H0) damps the first mode critically. Walls and floor lie on node
+    planes, computed as the nodes' coordinates are (see bar_scene)."""
+    y0, x0, x1 = 5 * cell, 5 * cell, 9 * cell
+    omega = np.pi / (2 * COLUMN_H) * np.sqrt(COLUMN_M / RHO)
+    return {
+        "simulation": {"duration": periods * 2 * np.pi / omega, "fps": 200},
+        "grid": {"cell_size": cell, "domain": {"min": [0, 0, 0], "max": [14 * cell, y0 + COLUMN_H + 6 * cell,
+                                                                          14 * cell]}},
+        "gravity": [0, -G, 0],
+        "wind": {"velocity": [0, 0, 0], "drag": 2 * omega},
+        "bodies": [{"name": "column",
+                    "geometry": {"mode": "cloud", "sampling": "jittered",
+                                 "shape": {"type": "box", "center": [7 * cell, y0 + COLUMN_H / 2, 7 * cell],
+                                           "size": [4 * cell, COLUMN_H, 4 * cell]}},
+                    "material": {"model": "elastic", "density": RHO, "lam": 0.0, "mu": COLUMN_M / 2}}],
+        "colliders": [{"type": "plane", "point": [0, y0, 0], "normal": [0, 1, 0], "boundary": "sticky"}]
+        + [{"type": "plane", "point": p, "normal": n, "boundary": "slip"} for p, n in [
+            ([x0, 0, 0], [1, 0, 0]), ([x1, 0, 0], [-1, 0, 0]),
+            ([0, 0, x0], [0, 0, 1]), ([0, 0, x1], [0, 0, -1])]],
+    }
+
+
+def top_settlement(sim: Sim) -> np.ndarray:
+    """Run the column to its end: mean downward displacement of the particles within 0.6 cells of the top [m]."""
+    x0 = sim.model.rest_x
+    top = np.flatnonzero(x0[:, 1] > sim.scene.colliders[0].point[1] + COLUMN_H - 0.6 * sim.scene.grid.cell_size)
+    sim.advance(sim.scene.simulation.duration)
+    return np.array([-(sim.state.particle_x[top, 1] - x0[top, 1]).mean()])
+
+
+COLUMN = Problem(
+    name="column", description="self-weight column (confined, 4 cells wide) on a sticky floor, settled: top drop",
+    quantity="top settlement [m]", reference=np.array([COLUMN_SETTLE]), reference_name="rho g H0^2 / (2 M)",
+    scale=COLUMN_SETTLE, finest=0.0625, ratio=np.sqrt(2), scene=column_scene, measure=top_settlement)
+
+PROBLEMS = {p.name: p for p in (BAR, CANTILEVER, COLUMN, FREE_FALL)}
