@@ -8,7 +8,7 @@ import numpy as np
 from pdmpm_cli.engine import bonds, transfer
 from pdmpm_cli.engine.materials import elastic
 from tests.conftest import BASE, Sim
-sim = Sim(BASE, None)
+sim = Sim(BASE)
 sim.solver.substep(sim.state, sim.plan.dt_max)
 kernels = [transfer.p2g, transfer.grid_update, transfer.g2p, bonds.averaged_deformation,
            bonds.reference_family_terms, elastic.elastic_forces]

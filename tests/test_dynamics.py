@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from pdmpm_cli.errors import SimulationError
+from pdmpm_cli.study.problems import bar_scene, bar_start, period as bar_period
 
 
 def test_free_fall_follows_g_t2_over_2(sim_factory):
@@ -60,32 +61,9 @@ def test_spinning_body_keeps_angular_momentum(sim_factory):
 
 
 def vibrating_bar(sim_factory, cell=1.25, periods=2.0):
-    """Sulsky's bar as a laterally confined column: L = 25, E = 100 (lam = 0, mu = 50 gives M = E), rho = 1.
-
-    With nu = 0 the bar's 1-D wave equation is the confined column's, whose modulus is M = lam + 2 mu
-    exactly in our calibration. The column is 4 cells (8 particles) wide: thinner columns are stiffer
-    (truncated families, docs/method.md) and shorten the period by 3 % at 2 cells."""
-    length, width = 25.0, 4 * cell
-    x0, y0 = 5 * cell, 5 * cell
-    scene = {
-        "simulation": {"duration": 10.0 * periods, "fps": 20},
-        "grid": {"cell_size": cell, "domain": {"min": [0, 0, 0], "max": [x0 + length + 6 * cell,
-                                                                          2 * y0 + width, 2 * y0 + width]}},
-        "gravity": [0, 0, 0],
-        "bodies": [{"name": "bar",
-                    "geometry": {"mode": "cloud", "sampling": "jittered",
-                                 "shape": {"type": "box", "center": [x0 + length / 2, y0 + width / 2, y0 + width / 2],
-                                           "size": [length, width, width]}},
-                    "material": {"model": "elastic", "density": 1.0, "lam": 0.0, "mu": 50.0}}],
-        "colliders": [{"type": "plane", "point": [x0, 0, 0], "normal": [1, 0, 0], "boundary": "sticky"}]
-        + [{"type": "plane", "point": p, "normal": n, "boundary": "slip"} for p, n in [
-            ([0, y0, 0], [0, 1, 0]), ([0, y0 + width, 0], [0, -1, 0]),
-            ([0, 0, y0], [0, 0, 1]), ([0, 0, y0 + width], [0, 0, -1])]],
-    }
-    sim = sim_factory(scene, base={})
-    xi = sim.state.particle_x[:, 0] - x0
-    sim.state.particle_v[:, 0] = 0.1 * np.sin(np.pi * xi / (2 * length))
-    sim.solver.start(sim.state)
+    """Sulsky's bar (pdmpm_cli.study.problems.bar_scene): times and centre-of-mass velocity at every step."""
+    sim = sim_factory(bar_scene(cell, periods), base={})
+    bar_start(sim)
     times, vcom = [0.0], [sim.momentum()[0] / sim.model.particle_mass.sum()]
 
     def record(state, dt):
@@ -98,11 +76,7 @@ def vibrating_bar(sim_factory, cell=1.25, periods=2.0):
 
 def test_vibrating_bar_period_and_damping(sim_factory):
     t, v = vibrating_bar(sim_factory)
-    # zero crossings of the centre-of-mass velocity, (2 v0 / pi) cos(omega t): period = 2 x crossing spacing
-    s = np.sign(v)
-    idx = np.flatnonzero(s[:-1] * s[1:] < 0)
-    crossings = t[idx] - v[idx] * (t[idx + 1] - t[idx]) / (v[idx + 1] - v[idx])
-    period = 2 * np.mean(np.diff(crossings))
+    period = bar_period(t, v)  # from the zero crossings of the centre-of-mass velocity, (2 v0 / pi) cos(omega t)
     amp = [np.abs(v[(t >= a) & (t < a + 10.0)]).max() for a in (0.0, 10.0)]
     decay = 1 - amp[1] / amp[0]
     print(f"\nvibrating bar: period {period:.4f} (analytic 10.0, error {100 * (period / 10 - 1):+.2f} %), "

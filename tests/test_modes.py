@@ -6,42 +6,14 @@ import pytest
 from tests.conftest import BASE, merge
 from pdmpm_cli.engine.embedding import mesh_positions
 from pdmpm_cli.scene.schema import Scene
-
-RHO = 1000.0
-
-
-def beam_geometry(mode, L, H, h):
-    """A square beam of free length L along +x from x = 0, with a 0.1 m root in x < 0 that the pin holds."""
-    box = {"type": "box", "center": [L / 2 - 0.05, 0, 0], "size": [L + 0.1, H, H]}
-    if mode == "cloud":
-        return {"mode": "cloud", "shape": box, "spacing": h}
-    if mode == "shell":  # layers from all faces meet in the middle: the shell fills the beam
-        return {"mode": "shell", "surface": box, "spacing": h, "layers": int(round(H / (2 * h)))}
-    return {"mode": "voronoi", "shape": box, "spacing": h}
+from pdmpm_cli.study.problems import cantilever_scene, euler_bernoulli, tip_sag
 
 
 def cantilever(sim_factory, mode, L, H, dx, E, periods=1.5):
-    """Static tip deflection of a beam clamped at x = 0 under gravity, and the Euler-Bernoulli value. Still air
-    (a wind of speed 0) damps the first mode critically (drag = 2 omega_1), so after 1.5 periods the beam
-    rests within 0.1 % of its static deflection; drag does not change the static state."""
-    M = 6 * E / 5  # docs/method.md: E_eff = 5 M / 6, nu = 1/4
-    inertia, area = H**4 / 12, H * H
-    eb = RHO * 9.81 * area * L**4 / (8 * E * inertia)
-    omega = 1.875**2 * np.sqrt(E * inertia / (RHO * area)) / L**2
-    scene = {
-        "simulation": {"duration": 1.0, "fps": 400},
-        "grid": {"cell_size": dx, "domain": {"min": [-0.3, -0.4, -0.3], "max": [L + 0.3, 0.3, 0.3]}},
-        "gravity": [0, -9.81, 0],
-        "wind": {"velocity": [0, 0, 0], "drag": 2 * omega},
-        "bodies": [{"name": "beam", "geometry": beam_geometry(mode, L, H, dx / 2),
-                    "material": {"model": "elastic", "density": RHO, "lam": M / 3, "mu": M / 3},
-                    "pins": [{"region": {"type": "box", "center": [-0.1, 0, 0], "size": [0.2, 1, 1]}}]}],
-    }
-    sim = sim_factory(scene, base={})
-    x0 = sim.model.rest_x
-    tip = np.flatnonzero(x0[:, 0] > L - 0.6 * dx)
-    sim.advance(periods * 2 * np.pi / omega)
-    return float(-(sim.state.particle_x[tip, 1] - x0[tip, 1]).mean()), eb, sim
+    """Static tip deflection of a beam clamped at x = 0 under gravity (pdmpm_cli.study.problems.cantilever_scene,
+    settled by critical air drag), and the Euler-Bernoulli value."""
+    sim = sim_factory(cantilever_scene(mode, L, H, dx, E, periods), base={})
+    return float(tip_sag(sim, L)[0]), euler_bernoulli(L, H, E), sim
 
 
 @pytest.mark.parametrize("mode", ["cloud", "shell", "voronoi"])

@@ -5,7 +5,7 @@ import sys
 import typer
 from rich.console import Console
 
-from pdmpm_cli.cli import render, run, scenes, schema, stability, sweep, validate
+from pdmpm_cli.cli import render, run, scenes, schema, stability, study, sweep, validate
 from pdmpm_cli.errors import PdmpmError
 
 app = typer.Typer(
@@ -22,6 +22,7 @@ app.command("scenes")(scenes.scenes)
 app.command("render")(render.render)
 app.command("sweep")(sweep.sweep)
 app.command("stability")(stability.stability)
+app.command("study")(study.study)
 
 err_console = Console(stderr=True, highlight=False)
 
