@@ -105,7 +105,8 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
     wave = max(b.effective["wave_speed"] for b in bodies)
     dt_cfl = sim.cfl * scene.grid.cell_size / wave
     # Grid-integrated particles are advanced by B-spline grid velocities, which do not carry the particle-scale
-    # modes dt_bond protects: measured thresholds are 0.5-1.5 dx / c, 3-8x dt_bond (docs/method.md, 'Time step').
+    # modes dt_bond protects: measured thresholds are 0.66-2.07 dx / c, 3-16x dt_bond, at 1-64 particles per cell
+    # (docs/method.md, 'Time step').
     # Crack particles integrate their own bonds (symplectic Euler), so the bond bound holds for fracture bodies.
     dt_bond = sim.bond_safety * min((b.dt_bond for b in bodies if b.bond_bound), default=math.inf)
     frame_dt = 1.0 / sim.fps

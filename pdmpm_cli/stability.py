@@ -20,8 +20,8 @@ Forced steps: the Plan reduces any user dt to its bound, by design. To measure t
 dt_bond of the fracture bodies), c the P-wave speed sqrt(M / rho) and |v0| the largest initial speed; the
 automatic step is min(cfl dx / (c + |v|), bond_safety dt_bond of the fracture bodies), cfl 0.4, bond_safety 0.7,
 dt_bond the Silling & Askari bound of our bonds (docs/method.md, 'Time step'). Measured (docs/results.md,
-'Stability'): bodies on the grid go unstable near 1-1.5 dx / c whatever their stiffness, lam / mu, model,
-particles per cell or horizon, 3-8x above their dt_bond, so the bond bound applies only where particles
+'Stability'): bodies on the grid go unstable at 0.66-2.07 dx / c whatever their stiffness, lam / mu, model,
+particles per cell or horizon, 3-16x above their dt_bond, so the bond bound applies only where particles
 integrate bonds off the grid (crack particles). `threshold` bisects k (geometrically, between 1/4 and 8) for the
 largest stable constant step.
 """
