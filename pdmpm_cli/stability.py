@@ -16,14 +16,13 @@ of dx / dt, the grid cells per step of the at-rest time step (`impact`). A run i
 Forced steps: the Plan reduces any user dt to its bound, by design. To measure the real threshold,
 `run_case(..., dt_factor=k)` replaces the Plan's step with a constant k times the predicted bound
 (dataclasses.replace on a copy of the Plan, never reachable from `pdmpm run`), and every such row is marked
-`forced`. The predicted bound is the engine's own bound at safety factor 1: dt_pred = min(dx / (c + |v0|),
-dt_bond of the fracture bodies), c the P-wave speed sqrt(M / rho) and |v0| the largest initial speed; the
-automatic step is min(cfl dx / (c + |v|), bond_safety dt_bond of the fracture bodies), cfl 0.4, bond_safety 0.7,
-dt_bond the Silling & Askari bound of our bonds (docs/method.md, 'Time step'). Measured (docs/results.md,
-'Stability'): bodies on the grid go unstable at 0.66-2.07 dx / c whatever their stiffness, lam / mu, model,
-particles per cell or horizon, 3-16x above their dt_bond, so the bond bound applies only where particles
-integrate bonds off the grid (crack particles). `threshold` bisects k (geometrically, between 1/4 and 8) for the
-largest stable constant step.
+`forced`. The predicted bound is the engine's own bound at safety factors 1: dt_pred = min(dx / (c + |v0|),
+dt_bond), c the P-wave speed sqrt(M / rho), |v0| the largest initial speed and dt_bond the Silling & Askari bound
+of our bonds; the automatic step is min(cfl dx / (c + |v|), bond_safety dt_bond), cfl 0.4, bond_safety 0.7
+(docs/method.md, 'Time step'). Measured (docs/results.md, 'Stability'): bodies on the grid go unstable at
+0.66-2.07 dx / c whatever their stiffness, lam / mu, model, particles per cell or horizon, 3-16x above dt_bond;
+crack particles at 2.6 dt_bond. `threshold` bisects k (geometrically, between 1/4 and 8) for the largest stable
+constant step.
 """
 
 import copy
@@ -248,7 +247,7 @@ class Prepared:
     prep: object  # runner.Prepared
     v0: float  # largest initial speed [m/s]
     dt_pred: float  # predicted critical step: the engine's bound at safety factors 1 [s]
-    dt_bond: float  # bond bound before bond_safety, every body (the engine uses it for fracture bodies only) [s]
+    dt_bond: float  # bond bound before bond_safety [s]
     dt_wave: float  # dx / c [s]
     bound: str  # which bound dt_pred is: cfl or bonds
 
@@ -268,9 +267,9 @@ def prepare_case(case: Case, path: Path = Path("stability.yaml")) -> Prepared:
     v0 = float(np.linalg.norm(prep.disc.velocity, axis=1).max()) if prep.disc.n_particles else 0.0
     plan = prep.plan
     dt_cfl = plan.cell_size / (plan.wave_speed + v0)
-    dt_bond = min((b.dt_bond for b in plan.bodies if b.bond_bound), default=math.inf)
-    return Prepared(prep, v0, min(dt_cfl, dt_bond), min(b.dt_bond for b in plan.bodies),
-                    plan.cell_size / plan.wave_speed, "cfl" if dt_cfl <= dt_bond else "bonds")
+    dt_bond = min(b.dt_bond for b in plan.bodies)
+    return Prepared(prep, v0, min(dt_cfl, dt_bond), dt_bond, plan.cell_size / plan.wave_speed,
+                    "cfl" if dt_cfl <= dt_bond else "bonds")
 
 
 def total_energy(solver, state, floor: float) -> float:

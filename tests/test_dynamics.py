@@ -106,5 +106,5 @@ def test_forced_oversize_step_is_caught(sim_factory):
     """Forcing dt far above the bound blows up; the solver stops with the step, particles and the knob."""
     sim = sim_factory({"bodies": [{**sim_factory().scene.bodies[0].model_dump(), "velocity": [0, -1.0, 0]}]})
     sim.solver.plan = dataclasses.replace(sim.plan, dt_max=30 * sim.plan.dt_max, dt_cfl=30 * sim.plan.dt_cfl)
-    with pytest.raises(SimulationError, match=r"at step \d+ .*lower simulation.cfl, or set"):
+    with pytest.raises(SimulationError, match=r"at step \d+ .*lower simulation.cfl or simulation.bond_safety"):
         sim.advance(1.0)

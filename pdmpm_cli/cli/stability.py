@@ -52,8 +52,8 @@ def stability(
 ):
     """Run the stability sweep with the automatic time step and classify each case (stable, nan, outside,
     energy, refused, error); then bisect forced oversize steps (flagged 'forced', never reachable from
-    `pdmpm run`) for the measured threshold against the engine's predicted bound, min(dx / (c + v0), dt_bond of
-    fracture bodies) (c the P-wave speed).
+    `pdmpm run`) for the measured threshold against the engine's predicted bound, min(dx / (c + v0), dt_bond)
+    (c the P-wave speed, dt_bond the bond bound).
     Exit code 1 if any automatic-step case is unstable."""
     from pdmpm_cli import stability as st
 

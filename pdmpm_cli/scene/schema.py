@@ -377,8 +377,7 @@ class Simulation(Strict):
     )
     cfl: float = Field(0.4, gt=0, le=1.0, description="CFL factor: dt <= cfl dx / (wave speed + max speed) [-].")
     bond_safety: float = Field(
-        0.7, gt=0, le=1.0, description="Safety factor on the peridynamic bond time-step bound, which limits the step of "
-                          "bodies with fracture only (their crack particles integrate bonds off the grid) [-]."
+        0.7, gt=0, le=1.0, description="Safety factor on the peridynamic bond time-step bound [-]."
     )
     seed: int = Field(0, ge=0, description="Seed of the random particle sampling [-].")
     backend: Literal["cpu", "cuda"] = Field(
