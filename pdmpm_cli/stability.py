@@ -20,7 +20,7 @@ Forced steps: the Plan reduces any user dt to its bound, by design. To measure t
 dt_bond), c the P-wave speed sqrt(M / rho), |v0| the largest initial speed and dt_bond the Silling & Askari bound
 of our bonds; the automatic step is min(cfl dx / (c + |v|), bond_safety dt_bond), cfl 0.4, bond_safety 0.7
 (docs/method.md, 'Time step'). Measured (docs/results.md, 'Stability'): bodies on the grid go unstable at
-0.66-2.07 dx / c whatever their stiffness, lam / mu, model, particles per cell or horizon, 3-16x above dt_bond;
+0.68-2.08 dx / c whatever their stiffness, lam / mu, model, particles per cell or horizon, 3-16x above dt_bond;
 crack particles at 2.6 dt_bond. `threshold` bisects k (geometrically, between 1/4 and 8) for the largest stable
 constant step.
 """

@@ -185,9 +185,8 @@ class Solver:
 
     def start(self, state: State):
         """Set the energy budget the runaway check measures against [J]: what gravity (over the domain's
-        largest extent), the colliders' motion (and the wind's and the pins') and the initial motion can legitimately
-        supply;
-        and the speed the first step's CFL bound uses."""
+        largest extent), the colliders' motion (and the wind's and the pins') and the initial motion can
+        legitimately supply; and the speed the first step's CFL bound uses."""
         for i, b in enumerate(self.plan.bodies):
             if MATERIALS[b.model].init is not None:
                 MATERIALS[b.model].init(self.model, state, i)
