@@ -16,13 +16,13 @@ of dx / dt, the grid cells per step of the at-rest time step (`impact`). A run i
 Forced steps: the Plan reduces any user dt to its bound, by design. To measure the real threshold,
 `run_case(..., dt_factor=k)` replaces the Plan's step with a constant k times the predicted bound
 (dataclasses.replace on a copy of the Plan, never reachable from `pdmpm run`), and every such row is marked
-`forced`. The predicted bound is the engine's CFL bound at factor 1, dt_pred = dx / c, c the P-wave speed
-sqrt(M / rho). The automatic step is min(cfl dx / (c + |v|), bond_safety dt_bond) with cfl 0.4, bond_safety 0.7
-and dt_bond the Silling & Askari bound of our bonds (docs/method.md, 'Time step'); dt_bond is reported too.
-Measured (docs/results.md, 'Stability'): bodies on the grid go unstable near 1-1.5 dx / c whatever their
-stiffness, lam / mu or model: the grid, not the single bond, sets the limit, so dt_bond (about 0.18 dx / c at
-horizon 2 h) is 5-8x conservative there. `threshold` bisects k (geometrically, between 1/4 and 8) for the
-largest stable constant step.
+`forced`. The predicted bound is the engine's own bound at safety factors 1: dt_pred = min(dx / (c + |v0|),
+dt_bond), c the P-wave speed sqrt(M / rho), |v0| the largest initial speed and dt_bond the Silling & Askari bound
+of our bonds; the automatic step is min(cfl dx / (c + |v|), bond_safety dt_bond), cfl 0.4, bond_safety 0.7
+(docs/method.md, 'Time step'). Measured (docs/results.md, 'Stability'): bodies on the grid go unstable at
+0.68-2.08 dx / c whatever their stiffness, lam / mu, model, particles per cell or horizon, 3-16x above dt_bond;
+crack particles at 2.6 dt_bond. `threshold` bisects k (geometrically, between 1/4 and 8) for the largest stable
+constant step.
 """
 
 import copy
@@ -174,6 +174,43 @@ def cases() -> list[Case]:
         "type": "sphere", "center": [0.6, 0.6, 0.6], "radius": 0.12}}}
     out.append(Case("shell_ball", "shell", "hollow ball, 1 layer", "closed single-layer shell hits the floor",
                     {"bodies": [shell], "colliders": [{**FLOOR, "point": [0, 0.43, 0]}]}, impact=1.0))
+    out += discretisation_cases(vib, gravity)
+    return out
+
+
+def discretisation_cases(vib, gravity) -> list[Case]:
+    """Discretisations the grid-filtering argument depends on (particles per cell, horizon, cell shapes, layers)
+    and boundary conditions that feed energy in (a moving pin) or hold a body (resting on a collider)."""
+    cloud = {"mode": "cloud", "shape": {"type": "box", "center": [0.6, 0.6, 0.6], "size": [0.3, 0.3, 0.3]}}
+    out = [
+        Case("spacing_dx", "discretisation", "h = dx (1 particle per cell)", "coarsest particles: 1 per cell",
+             {"bodies": [_body(geometry={**cloud, "spacing": 0.05})]}, vib),
+        Case("spacing_dx_4", "discretisation", "h = dx/4 (64 per cell)", "fine particles: 64 per cell",
+             {"bodies": [_body(geometry={"spacing": 0.0125})]}, vib),
+        Case("horizon_3h", "discretisation", "horizon 3h", "wider horizon, 4x the bonds",
+             {"bodies": [_body(geometry={"horizon": 3.0})]}, vib),
+        Case("horizon_3h_dx", "discretisation", "h = dx, horizon 3h", "1 particle per cell and a wide horizon",
+             {"bodies": [_body(geometry={**cloud, "spacing": 0.05, "horizon": 3.0})]}, vib),
+        Case("voronoi", "discretisation", "Voronoi cells, h = dx/2", "face-sharing bonds of Voronoi cells",
+             {"bodies": [_body(geometry={"mode": "voronoi", "shape": BASE["bodies"][0]["geometry"]["shape"]})]},
+             vib),
+        Case("shell_layers_3", "discretisation", "hollow ball, 3 layers", "multi-layer shell hits the floor",
+             {"bodies": [{**_body(name="ball"), "geometry": {"mode": "shell", "layers": 3, "surface": {
+                 "type": "sphere", "center": [0.6, 0.6, 0.6], "radius": 0.12}}}],
+              "colliders": [{**FLOOR, "point": [0, 0.43, 0]}]}, impact=1.0),
+        Case("crack_dx_4", "discretisation", "threshold 0.02, h = dx/4", "crack particles at 64 per cell",
+             {"bodies": [_body(geometry={"spacing": 0.0125}, fracture={"threshold": 0.02})], "colliders": [FLOOR]},
+             impact=0.2),
+        Case("fracture_intact", "discretisation", "threshold 10, nothing breaks", "a fracture body with no crack",
+             {"bodies": [_body(fracture={"threshold": 10.0})]}, vib),
+    ]
+    pull = {"region": {"type": "box", "center": [0.7, 0.6, 0.6], "size": [0.02, 0.2, 0.2]},
+            "velocity": [0.1, 0.0, 0.0]}  # the +x face, pulled at 0.1 m/s (0.006 c), the rest dragged along
+    out.append(Case("pin_pulled", "boundary", "face pinned at 0.1 m/s", "a moving pin drags the block",
+                    {"bodies": [_body(pins=[pull])]}))
+    out.append(Case("resting_floor", "boundary", "on the floor, gravity", "a body touching a collider from the start",
+                    {"bodies": [_body()], "colliders": [{**FLOOR, "point": [0, 0.5, 0]}], "gravity": gravity},
+                    steps=1000))
     return out
 
 
@@ -181,7 +218,8 @@ QUICK = ("stiff_1e3", "stiff_1e9", "cfl_1_bond_1", "cfl_1.2", "lam_mu_1000", "vi
          "compress_0.3x", "impact_floor_10", "plastic_drop", "shatter_1e-4", "cloth_drape")
 THRESHOLD_CASES = ("stiff_1e3", "stiff_1e6", "stiff_1e9", "lam_mu_1000", "mu_0", "visco_lam_mu_100",
                    "cloth_stretch_2x", "cloth_stiff", "impact_floor_1", "impact_floor_10", "plastic_impact_1",
-                   "crack_0.02", "shatter_plastic")
+                   "crack_0.02", "shatter_plastic", "spacing_dx", "spacing_dx_4", "horizon_3h", "horizon_3h_dx",
+                   "voronoi", "shell_layers_3", "crack_dx_4", "fracture_intact", "pin_pulled", "resting_floor")
 QUICK_THRESHOLD = ("stiff_1e6",)
 
 
@@ -208,8 +246,10 @@ class Growth(Exception):
 class Prepared:
     prep: object  # runner.Prepared
     v0: float  # largest initial speed [m/s]
-    dt_pred: float  # predicted critical step: the CFL bound at cfl = 1 and rest, dx / c [s]
+    dt_pred: float  # predicted critical step: the engine's bound at safety factors 1 [s]
     dt_bond: float  # bond bound before bond_safety [s]
+    dt_wave: float  # dx / c [s]
+    bound: str  # which bound dt_pred is: cfl or bonds
 
 
 def prepare_case(case: Case, path: Path = Path("stability.yaml")) -> Prepared:
@@ -226,7 +266,10 @@ def prepare_case(case: Case, path: Path = Path("stability.yaml")) -> Prepared:
         prep = prepare_scene(Scene.model_validate(scene_dict), path)
     v0 = float(np.linalg.norm(prep.disc.velocity, axis=1).max()) if prep.disc.n_particles else 0.0
     plan = prep.plan
-    return Prepared(prep, v0, plan.cell_size / plan.wave_speed, plan.dt_bond / prep.scene.simulation.bond_safety)
+    dt_cfl = plan.cell_size / (plan.wave_speed + v0)
+    dt_bond = min(b.dt_bond for b in plan.bodies)
+    return Prepared(prep, v0, min(dt_cfl, dt_bond), dt_bond, plan.cell_size / plan.wave_speed,
+                    "cfl" if dt_cfl <= dt_bond else "bonds")
 
 
 def total_energy(solver, state, floor: float) -> float:
@@ -241,7 +284,7 @@ def run_case(case: Case, dt_factor: float | None = None, ready: Prepared | None 
     """Run one case with the automatic step, or (dt_factor) a forced constant step of dt_factor * dt_pred,
     and classify it. Returns one row of the sweep table."""
     from pdmpm_cli.engine.model import State
-    from pdmpm_cli.engine.solver import Solver
+    from pdmpm_cli.engine.solver import Solver, pin_speed
 
     row = {"case": case.name, "category": case.category, "parameter": case.parameter,
            "forced": dt_factor is not None, "dt_factor": dt_factor}
@@ -270,7 +313,8 @@ def run_case(case: Case, dt_factor: float | None = None, ready: Prepared | None 
     lo, hi = np.asarray(prep.scene.grid.domain.min), np.asarray(prep.scene.grid.domain.max)
     floor = float(np.min(-(lo + corners * (hi - lo)) @ g))
     e0 = total_energy(solver, state, floor)
-    ref = max(e0, 1e-12 * float(prep.model.particle_mass.sum()))
+    mass = float(prep.model.particle_mass.sum())
+    ref = max(e0, 0.5 * mass * pin_speed(prep.model) ** 2, 1e-12 * mass)  # a moving pin drags the body along
     ratio, last, vmax, cells, steps, dt_top, message, cls = 1.0, 1.0, ready.v0, 0.0, 0, 0.0, "", "stable"
 
     def substep(st, dt):
@@ -308,7 +352,7 @@ def run_case(case: Case, dt_factor: float | None = None, ready: Prepared | None 
         isolated = int((np.bincount(owner, weights=state.bond_active, minlength=prep.disc.n_particles) == 0).sum())
     return row | {
         "class": cls, "energy_ratio": ratio, "energy_end": last, "max_speed": vmax, "cells_per_step": cells,
-        "steps": steps, "dt_max": dt_top, "dt_pred": ready.dt_pred, "dt_ratio": dt_top / ready.dt_pred,
+        "steps": steps, "dt_max": dt_top, "dt_pred": ready.dt_pred, "dt_ratio": dt_top / ready.dt_wave,
         "dt_bond": ready.dt_bond,
         "particles": prep.disc.n_particles, "isolated": isolated, "time": state.time, "message": message,
         "wall_s": time.perf_counter() - t0,
@@ -322,6 +366,7 @@ def threshold(case: Case, lo: float = LO, hi: float = HI, bisections: int = BISE
     the largest stable factor found (0 if none was) and `unstable` the smallest unstable one (inf if none);
     `on_run(row)` sees every forced run."""
     ready = prepare_case(case)
+    plan = ready.prep.plan
     runs = []
 
     def stable(k):
@@ -351,9 +396,12 @@ def threshold(case: Case, lo: float = LO, hi: float = HI, bisections: int = BISE
             lo, hi = (mid, hi) if stable(mid) else (lo, mid)
     measured = lo if low_ok else 0.0
     return {"case": case.name, "category": case.category, "parameter": case.parameter, "dt_pred": ready.dt_pred,
-            "dt_bond": ready.dt_bond, "dt_auto": ready.prep.plan.dt_max,
+            "dt_bond": ready.dt_bond, "dt_auto": ready.prep.plan.dt_max, "bound": ready.bound,
             "measured": measured, "unstable": hi if bracketed else math.inf if low_ok else lo, "bracketed": bracketed,
             "within_2x": bracketed and 0.5 <= measured <= 2.0, "runs": len(runs),
             "bond_units": measured * ready.dt_pred / ready.dt_bond,
+            "wave_units": measured * ready.dt_pred / ready.dt_wave,
+            "margin": measured * ready.dt_pred / min(ready.prep.plan.dt_max, plan.dt_cfl * plan.wave_speed
+                                                     / (plan.wave_speed + ready.v0)),
             "v0_cells": ready.v0 * measured * ready.dt_pred / ready.prep.plan.cell_size,
             "failure": next((r["class"] for r in runs if r["class"] != "stable"), "")}

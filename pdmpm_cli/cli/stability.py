@@ -12,8 +12,8 @@ from rich.table import Table
 COLUMNS = ("case", "category", "parameter", "class", "energy_ratio", "energy_end", "max_speed", "cells_per_step",
            "steps", "dt_ratio", "dt_pred", "dt_bond", "particles", "isolated", "forced", "dt_factor", "wall_s",
            "message")
-THRESHOLD_COLUMNS = ("case", "category", "parameter", "dt_pred", "dt_bond", "dt_auto", "measured", "unstable",
-                     "bond_units", "v0_cells", "failure", "within_2x", "runs")
+THRESHOLD_COLUMNS = ("case", "category", "parameter", "bound", "dt_pred", "dt_bond", "dt_auto", "measured",
+                     "unstable", "wave_units", "bond_units", "margin", "v0_cells", "failure", "within_2x", "runs")
 COLOUR = {"stable": "green", "refused": "cyan"}
 
 
@@ -52,7 +52,8 @@ def stability(
 ):
     """Run the stability sweep with the automatic time step and classify each case (stable, nan, outside,
     energy, refused, error); then bisect forced oversize steps (flagged 'forced', never reachable from
-    `pdmpm run`) for the measured threshold against the predicted bound dx / c (c the P-wave speed).
+    `pdmpm run`) for the measured threshold against the engine's predicted bound, min(dx / (c + v0), dt_bond)
+    (c the P-wave speed, dt_bond the bond bound).
     Exit code 1 if any automatic-step case is unstable."""
     from pdmpm_cli import stability as st
 

@@ -57,7 +57,7 @@ def print_plan(console: Console, plan):
     steps.add_row("CFL (at rest)", f"{plan.dt_cfl:.4g}")
     steps.add_row("bonds (x safety)", f"{plan.dt_bond:.4g}")
     steps.add_row("frame", f"{plan.frame_dt:.4g}")
-    steps.add_row("used (max)", f"{plan.dt_max:.4g}")
+    steps.add_row(f"used (max; binding: {plan.binding})", f"{plan.dt_max:.4g}")
     steps.add_row("substeps per frame (>=)", f"{plan.frame_dt / plan.dt_max:.1f}")
     console.print(steps)
     arrays = Table(title=f"arrays ({plan.memory_bytes / 2**20:.1f} MiB)")

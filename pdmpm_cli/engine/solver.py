@@ -23,6 +23,12 @@ def kinetic_energy(particle_mass: np.ndarray, particle_v: np.ndarray) -> float:
     return 0.5 * float(np.dot(particle_mass, np.einsum("ij,ij->i", particle_v, particle_v)))
 
 
+def pin_speed(model: Model) -> float:
+    """Largest prescribed speed of the pinned particles [m/s] (0 without pins)."""
+    held = model.pin_mask.astype(bool) if len(model.pin_mask) else np.zeros(0, dtype=bool)
+    return float(np.linalg.norm(model.pin_velocity[held], axis=1).max()) if held.any() else 0.0
+
+
 class Solver:
     """Runs the Plan's phases on a State; one method per phase, each one jitted kernel."""
 
@@ -179,8 +185,8 @@ class Solver:
 
     def start(self, state: State):
         """Set the energy budget the runaway check measures against [J]: what gravity (over the domain's
-        largest extent), the colliders' motion (and the wind's) and the initial motion can legitimately supply;
-        and the speed the first step's CFL bound uses."""
+        largest extent), the colliders' motion (and the wind's and the pins') and the initial motion can
+        legitimately supply; and the speed the first step's CFL bound uses."""
         for i, b in enumerate(self.plan.bodies):
             if MATERIALS[b.model].init is not None:
                 MATERIALS[b.model].init(self.model, state, i)
@@ -188,6 +194,7 @@ class Solver:
         extent = float(np.max(np.asarray(self.plan.grid_nodes) - 1) * m.dx)
         v_coll = float(np.abs(m.colliders[:, 10:13]).max()) if len(m.colliders) else 0.0
         v_coll = max(v_coll, float(np.linalg.norm(m.wind_velocity)))  # the wind can bring material to its speed
+        v_coll = max(v_coll, pin_speed(m))  # so can a moving pin that drags its body along
         mass = float(m.particle_mass.sum())
         self.energy_budget = self.kinetic_energy(state) + mass * (np.linalg.norm(m.gravity) * extent + v_coll**2)
         self.energy_budget += self.strain_energy(state) + 1e-12 * mass
