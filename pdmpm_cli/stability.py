@@ -25,7 +25,6 @@ crack particles at 2.6 dt_bond. `threshold` bisects k (geometrically, between 1/
 constant step.
 """
 
-import copy
 import dataclasses
 import math
 import time
@@ -36,6 +35,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from pdmpm_cli.errors import InputError, SimulationError
+from pdmpm_cli.scene.loader import merge
 
 GROWTH = 10.0  # total energy above this multiple of its start is a blow-up (VERIFICATION.md)
 FRAMES = 10  # energy and runaway checks per run
@@ -68,14 +68,6 @@ class Case:
     prestretch: tuple[float, float, float] = (1.0, 1.0, 1.0)  # initial x_p = c + S (X_p - c), S = diag [-]
     impact: float = 0.0  # initial speed along -y (the first body; +y for a second) in dx / dt_auto [-]
     steps: int = 250  # nominal run length in at-rest automatic steps
-
-
-def merge(base: dict, changes: dict) -> dict:
-    """Deep merge of nested dicts; lists and scalars in `changes` replace."""
-    out = copy.deepcopy(base)
-    for k, v in changes.items():
-        out[k] = merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
 
 
 def _material(**kw) -> dict:

@@ -1,9 +1,8 @@
 """Shared helpers: build scenes in code and run them without touching the disk."""
 
-import copy
-
 import pytest
 
+from pdmpm_cli.scene.loader import merge
 from pdmpm_cli.study.sim import Sim
 
 BASE = {
@@ -17,13 +16,6 @@ BASE = {
         "material": {"model": "elastic", "density": 1000.0, "lam": 1e5, "mu": 1e5},
     }],
 }
-
-
-def merge(base: dict, changes: dict) -> dict:
-    out = copy.deepcopy(base)
-    for k, v in changes.items():
-        out[k] = merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
 
 
 @pytest.fixture

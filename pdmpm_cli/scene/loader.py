@@ -5,6 +5,7 @@ Generic over the model class: all knowledge of the schema comes from pydantic's 
 
 from __future__ import annotations
 
+import copy
 import difflib
 import json
 import os
@@ -461,3 +462,11 @@ def load_scene(path: str | os.PathLike, model_cls: type[M], overrides: Sequence[
         problems = {str(p): p for p in (_problem(err, model_cls, tree, set_paths) for err in e.errors())}
         order = lambda p: (p.file == OVERRIDE, p.line or 0, p.col or 0)  # noqa: E731
         raise SceneError(sorted(problems.values(), key=order)) from None
+
+
+def merge(base: dict, changes: dict) -> dict:
+    """Deep merge of nested scene dicts; lists and scalars in `changes` replace."""
+    out = copy.deepcopy(base)
+    for k, v in changes.items():
+        out[k] = merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
