@@ -215,7 +215,7 @@ def grid_weights(sim: Sim) -> sparse.csr_matrix:
     return sparse.csr_matrix((wt.ravel(), (node.ravel(), part)), shape=(int(np.prod(m.grid_shape)), m.n_particles))
 
 
-def rest_state(sim: Sim, ridges=(1e-9, 1e-12)) -> tuple[list[np.ndarray], np.ndarray]:
+def rest_state(sim: Sim, ridges=(1e-9, 1e-12), bonds: bool = True) -> tuple[list[np.ndarray], np.ndarray | None]:
     """Small-displacement rest displacements under gravity, pinned particles held [m]: ([MPM per ridge], bonds).
 
     An explicit run does not reach this state in any affordable time (docs/results.md, 'Cantilever'): it creeps
@@ -224,14 +224,17 @@ def rest_state(sim: Sim, ridges=(1e-9, 1e-12)) -> tuple[list[np.ndarray], np.nda
     every node a free particle touches, N_f K_ff N_f^T U = m_I g (m_I counts pinned mass: P2G scatters it). That
     matrix is nearly singular (the creeping modes), so it gets a ridge r mean(diag) I; the tip converges from
     below as r falls until round-off takes over (below 1e-12). Bonds: K_ff u_f = m_f g, the peridynamic body
-    without the grid."""
+    without the grid (a direct factorisation of 3n unknowns: out of memory beyond about 2500 particles on 23 GB;
+    bonds=False skips it)."""
     m = sim.model
     free = ~m.pin_mask if len(m.pin_mask) else np.ones(m.n_particles, bool)
     dof = np.flatnonzero(np.repeat(free, 3))
     K = bond_stiffness(sim)[dof][:, dof]
     weight = np.tile(m.gravity, m.n_particles) * np.repeat(m.particle_mass, 3)
-    u_bonds = np.zeros(3 * m.n_particles)
-    u_bonds[dof] = spsolve(K.tocsc(), weight[dof])
+    u_bonds = None
+    if bonds:
+        u_bonds = np.zeros((m.n_particles, 3))
+        u_bonds.reshape(-1)[dof] = spsolve(K.tocsc(), weight[dof])
     N = grid_weights(sim)
     nodes = np.flatnonzero(np.asarray(N[:, free].sum(axis=1)).ravel() > 0)
     Nf = sparse.kron(N[nodes], sparse.identity(3), format="csr")[:, dof]
@@ -242,14 +245,14 @@ def rest_state(sim: Sim, ridges=(1e-9, 1e-12)) -> tuple[list[np.ndarray], np.nda
         u = np.zeros(3 * m.n_particles)
         u[dof] = Nf.T @ spsolve(A + r * A.diagonal().mean() * sparse.identity(A.shape[0], format="csc"), load)
         out.append(u.reshape(-1, 3))
-    return out, u_bonds.reshape(-1, 3)
+    return out, u_bonds
 
 
-def rest_tip_sag(sim: Sim, L: float, ridges=(1e-9, 1e-12)) -> tuple[list[float], float]:
-    """Tip deflection at rest (rest_state) [m]: ([MPM per ridge], bonds alone), same tip particles as tip_sag."""
+def rest_tip_sag(sim: Sim, L: float, ridges=(1e-9, 1e-12), bonds: bool = True) -> tuple[list[float], float | None]:
+    """Tip deflection at rest (rest_state) [m]: ([MPM per ridge], bonds alone or None), the tip of tip_sag."""
     tip = np.flatnonzero(sim.model.rest_x[:, 0] > L - 0.6 * sim.scene.grid.cell_size)
-    mpm, bonds = rest_state(sim, ridges)
-    return [float(-u[tip, 1].mean()) for u in mpm], float(-bonds[tip, 1].mean())
+    mpm, u_bonds = rest_state(sim, ridges, bonds)
+    return [float(-u[tip, 1].mean()) for u in mpm], None if u_bonds is None else float(-u_bonds[tip, 1].mean())
 
 
 def whole_layers(dx: float, H: float) -> float:
