@@ -44,7 +44,8 @@ def _three_modes(sim_factory, L, H, dx, E):
         out[mode] = (fine / eb, fine / coarse - 1)
         print(f"{mode:8s} {sim.model.n_particles:6d} particles  rest sag {fine * 1e3:7.3f} mm  Euler-Bernoulli "
               f"{eb * 1e3:7.3f} mm  error {100 * (fine / eb - 1):+6.1f} % (Timoshenko "
-              f"{100 * (fine / timoshenko(L, H, E) - 1):+6.1f} %)  ridge 1e-9 -> 1e-12 {100 * (fine / coarse - 1):+.2f} %"
+              f"{100 * (fine / timoshenko(L, H, E) - 1):+6.1f} %)  ridge 1e-9 -> 1e-12 "
+              f"{100 * (fine / coarse - 1):+.2f} %"
               + ("" if bonds is None else f"  bonds alone {bonds / eb:.3f}"))
     sags = np.array([v[0] for v in out.values()])
     spread = sags.max() / sags.min() - 1
