@@ -187,8 +187,8 @@ def bond_stiffness(sim: Sim) -> sparse.csr_matrix:
         for a in range(3):
             state.particle_x[p, a] = x0[p, a] + eps
             solver.fbar(state)
-            for b in sim.plan.bodies:
-                solver.material_phase(state, "bonds", b.model, 0.0)
+            for kind in solver.bodies_of:
+                solver.material_phase(state, "bonds", kind, 0.0)
             f = state.particle_force.ravel()
             nz = np.flatnonzero(f)
             rows.append(nz)
