@@ -6,14 +6,15 @@ import pytest
 from tests.conftest import BASE, merge
 from pdmpm_cli.engine.embedding import mesh_positions
 from pdmpm_cli.scene.schema import Scene
-from pdmpm_cli.study.problems import cantilever_scene, euler_bernoulli, tip_sag
+from pdmpm_cli.study.problems import cantilever_scene, euler_bernoulli, rest_tip_sag, timoshenko
 
 
-def cantilever(sim_factory, mode, L, H, dx, E, periods=1.5):
-    """Static tip deflection of a beam clamped at x = 0 under gravity (pdmpm_cli.study.problems.cantilever_scene,
-    settled by critical air drag), and the Euler-Bernoulli value."""
-    sim = sim_factory(cantilever_scene(mode, L, H, dx, E, periods), base={})
-    return float(tip_sag(sim, L)[0]), euler_bernoulli(L, H, E), sim
+def cantilever(sim_factory, mode, L, H, dx, E):
+    """Rest tip deflection of a beam clamped at x = 0 under gravity (pdmpm_cli.study.problems.rest_tip_sag:
+    the MPM grid equilibrium at ridges 1e-9 and 1e-12, and the bonds alone or None), and Euler-Bernoulli."""
+    sim = sim_factory(cantilever_scene(mode, L, H, dx, E), base={})
+    mpm, bonds = rest_tip_sag(sim, L, bonds=sim.model.n_particles < 2500)  # its factorisation needs memory
+    return mpm, bonds, euler_bernoulli(L, H, E), sim
 
 
 @pytest.mark.parametrize("mode", ["cloud", "shell", "voronoi"])
@@ -35,35 +36,46 @@ def test_free_body_at_rest_stays_at_rest(sim_factory, mode):
 
 
 def _three_modes(sim_factory, L, H, dx, E):
+    """Per mode: MPM rest tip / Euler-Bernoulli (ridge 1e-12) and its change from ridge 1e-9; prints the bonds
+    alone where they fit in memory."""
     out = {}
     for mode in ("cloud", "shell", "voronoi"):
-        sag, eb, sim = cantilever(sim_factory, mode, L, H, dx, E)
-        out[mode] = sag
-        print(f"{mode:8s} {sim.model.n_particles:6d} particles  sag {sag * 1e3:7.3f} mm  Euler-Bernoulli "
-              f"{eb * 1e3:7.3f} mm  error {100 * (sag / eb - 1):+6.1f} %")
-    sags = np.array(list(out.values()))
+        (coarse, fine), bonds, eb, sim = cantilever(sim_factory, mode, L, H, dx, E)
+        out[mode] = (fine / eb, fine / coarse - 1)
+        print(f"{mode:8s} {sim.model.n_particles:6d} particles  rest sag {fine * 1e3:7.3f} mm  Euler-Bernoulli "
+              f"{eb * 1e3:7.3f} mm  error {100 * (fine / eb - 1):+6.1f} % (Timoshenko "
+              f"{100 * (fine / timoshenko(L, H, E) - 1):+6.1f} %)  ridge 1e-9 -> 1e-12 "
+              f"{100 * (fine / coarse - 1):+.2f} %"
+              + ("" if bonds is None else f"  bonds alone {bonds / eb:.3f}"))
+    sags = np.array([v[0] for v in out.values()])
     spread = sags.max() / sags.min() - 1
     print(f"spread between modes {100 * spread:.1f} %")
-    return sags, eb, spread
+    return out, spread
 
 
 def test_cantilever_three_modes_reduced(sim_factory):
-    """CI size (L/H = 5, 6 particles through the thickness). Measured: cloud +14 %, shell -3 %, Voronoi -6 %
-    against Euler-Bernoulli (Timoshenko adds +4 % at this slenderness): the modes do NOT yet agree within the
-    10 % issue 4 asks (docs/results.md); this test guards the present state against regressions."""
-    sags, eb, spread = _three_modes(sim_factory, L=0.5, H=0.1, dx=1 / 30, E=1e7)
-    assert spread < 0.25
-    assert np.all(np.abs(sags / eb - 1) < 0.20)
+    """CI size (L/H = 5, 6 particles through the thickness), the rest state solved directly (an explicit run
+    creeps for tens of periods: docs/results.md, 'Cantilever'). Measured, tip / Euler-Bernoulli: cloud 1.390,
+    shell 0.954, Voronoi 1.010 (Timoshenko 1.040): shell and Voronoi agree within 6 %, the cloud is 36 % soft,
+    so the modes do NOT yet agree within the 10 % issue 4 asks; this guards the present state."""
+    out, spread = _three_modes(sim_factory, L=0.5, H=0.1, dx=1 / 30, E=1e7)
+    expected = {"cloud": 1.390, "shell": 0.954, "voronoi": 1.010}
+    for mode, (sag, ridge_change) in out.items():
+        assert abs(sag / expected[mode] - 1) < 0.02, mode
+        assert -0.001 < ridge_change < 0.01, mode  # converging from below as the ridge falls
+    assert 0.4 < spread < 0.5
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="issue 4 open: Voronoi bodies bend 12 % stiff at L/H = 10 (docs/results.md)", strict=False)
+@pytest.mark.xfail(reason="issue 4 open: at rest the cloud beam sags 1.172 of Euler-Bernoulli, Voronoi 0.905 "
+                          "(30 % apart; docs/results.md)", strict=False)
 def test_cantilever_three_modes_match_euler_bernoulli(sim_factory):
     """L/H = 10, 8 particles through the thickness: the issue's target, within 10 % of Euler-Bernoulli and of
-    each other (see docs/results.md for what it measures today)."""
-    sags, eb, spread = _three_modes(sim_factory, L=1.0, H=0.1, dx=0.025, E=7.4e7)
+    each other. Measured at rest: cloud 1.172, Voronoi 0.905; the shell beam (about 8000 particles) needs more
+    memory than the 13 GB the others took to probe and was not run (docs/results.md)."""
+    out, spread = _three_modes(sim_factory, L=1.0, H=0.1, dx=0.025, E=7.4e7)
     assert spread < 0.10
-    assert np.all(np.abs(sags / eb - 1) < 0.10)
+    assert all(abs(v[0] - 1) < 0.10 for v in out.values())
 
 
 def cloth_scene(mu):

@@ -11,6 +11,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
+from scipy.sparse.linalg import spsolve
 
 from pdmpm_cli.study.sim import Sim
 
@@ -146,8 +148,8 @@ def timoshenko(L: float, H: float, E: float, nu: float = 0.25) -> float:
 def cantilever_scene(mode: str, L: float, H: float, dx: float, E: float, periods: float = 1.5) -> dict:
     """A beam clamped at x = 0 under gravity in still air: a wind of speed 0 whose drag 2 omega_1 damps the first
     mode critically (drag does not change the static state). After 1.5 periods that mode is within 0.1 % of rest,
-    but the beam still creeps, at a rate that depends on dt (docs/results.md, 'Cantilever'). lam = mu = M / 3 with
-    M = 6 E / 5 gives E_eff = E, nu = 1/4."""
+    but the beam still creeps for tens of periods, slower at smaller dt; `rest_tip_sag` solves for the state it
+    creeps towards (docs/results.md, 'Cantilever'). lam = mu = M / 3 with M = 6 E / 5 gives E_eff = E, nu = 1/4."""
     M = 6 * E / 5
     omega = beam_omega(L, H, E)
     return {
@@ -168,6 +170,89 @@ def tip_sag(sim: Sim, L: float) -> np.ndarray:
     tip = np.flatnonzero(x0[:, 0] > L - 0.6 * sim.scene.grid.cell_size)
     sim.advance(sim.scene.simulation.duration)
     return np.array([-(sim.state.particle_x[tip, 1] - x0[tip, 1]).mean()])
+
+
+# ---------------------------------------------------------------- rest state under gravity, solved directly
+
+
+def bond_stiffness(sim: Sim) -> sparse.csr_matrix:
+    """K = -df/dx of the bond forces at the rest configuration [N/m] (3n x 3n; row 3p + a is force component a on
+    particle p), one column per probe that moves one coordinate by 1e-6 of the spacing. The force at rest is
+    exactly zero (docs/method.md) and linear to 1e-6 there, so one-sided probes suffice."""
+    state, solver = sim.state, sim.solver
+    x0 = state.particle_x.copy()
+    eps = 1e-6 * float(np.min(sim.model.body_spacing))
+    rows, cols, vals = [], [], []
+    for p in range(sim.model.n_particles):
+        for a in range(3):
+            state.particle_x[p, a] = x0[p, a] + eps
+            solver.fbar(state)
+            for kind in solver.bodies_of:
+                solver.material_phase(state, "bonds", kind, 0.0)
+            f = state.particle_force.ravel()
+            nz = np.flatnonzero(f)
+            rows.append(nz)
+            cols.append(np.full(len(nz), 3 * p + a))
+            vals.append(-f[nz] / eps)
+            state.particle_x[p, a] = x0[p, a]
+    solver.fbar(state)
+    n3 = 3 * sim.model.n_particles
+    return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n3, n3))
+
+
+def grid_weights(sim: Sim) -> sparse.csr_matrix:
+    """N_Ip, the cubic B-spline weight of node I at particle p's rest position (nodes x particles)."""
+    m = sim.model
+    f = (m.rest_x - m.origin) / m.dx
+    base = np.floor(f).astype(np.int64) - 1
+    idx = base[:, None, :] + np.arange(4)[None, :, None]  # (n, 4 nodes, 3 axes)
+    d = np.abs(f[:, None, :] - idx)
+    w = np.where(d < 1, 0.5 * d**3 - d**2 + 2 / 3, (2 - np.minimum(d, 2)) ** 3 / 6)
+    _, ny, nz = m.grid_shape
+    node = (idx[:, :, None, None, 0] * ny + idx[:, None, :, None, 1]) * nz + idx[:, None, None, :, 2]
+    wt = w[:, :, None, None, 0] * w[:, None, :, None, 1] * w[:, None, None, :, 2]
+    part = np.repeat(np.arange(m.n_particles), 64)
+    return sparse.csr_matrix((wt.ravel(), (node.ravel(), part)), shape=(int(np.prod(m.grid_shape)), m.n_particles))
+
+
+def rest_state(sim: Sim, ridges=(1e-9, 1e-12), bonds: bool = True) -> tuple[list[np.ndarray], np.ndarray | None]:
+    """Small-displacement rest displacements under gravity, pinned particles held [m]: ([MPM per ridge], bonds).
+
+    An explicit run does not reach this state in any affordable time (docs/results.md, 'Cantilever'): it creeps
+    towards it along grid modes that the particles barely resist and the transfers damp every step. So we solve
+    for it. MPM: particles move with the grid, u_p = sum_I N_Ip U_I, and at rest the grid force vanishes on
+    every node a free particle touches, N_f K_ff N_f^T U = m_I g (m_I counts pinned mass: P2G scatters it). That
+    matrix is nearly singular (the creeping modes), so it gets a ridge r mean(diag) I; the tip converges from
+    below as r falls until round-off takes over (below 1e-12). Bonds: K_ff u_f = m_f g, the peridynamic body
+    without the grid (a direct factorisation of 3n unknowns: out of memory beyond about 2500 particles on 23 GB;
+    bonds=False skips it)."""
+    m = sim.model
+    free = ~m.pin_mask if len(m.pin_mask) else np.ones(m.n_particles, bool)
+    dof = np.flatnonzero(np.repeat(free, 3))
+    K = bond_stiffness(sim)[dof][:, dof]
+    weight = np.tile(m.gravity, m.n_particles) * np.repeat(m.particle_mass, 3)
+    u_bonds = None
+    if bonds:
+        u_bonds = np.zeros((m.n_particles, 3))
+        u_bonds.reshape(-1)[dof] = spsolve(K.tocsc(), weight[dof])
+    N = grid_weights(sim)
+    nodes = np.flatnonzero(np.asarray(N[:, free].sum(axis=1)).ravel() > 0)
+    Nf = sparse.kron(N[nodes], sparse.identity(3), format="csr")[:, dof]
+    A = (Nf @ K @ Nf.T).tocsc()
+    load = np.kron(N[nodes] @ m.particle_mass, m.gravity)
+    out = []
+    for r in ridges:
+        u = np.zeros(3 * m.n_particles)
+        u[dof] = Nf.T @ spsolve(A + r * A.diagonal().mean() * sparse.identity(A.shape[0], format="csc"), load)
+        out.append(u.reshape(-1, 3))
+    return out, u_bonds
+
+
+def rest_tip_sag(sim: Sim, L: float, ridges=(1e-9, 1e-12), bonds: bool = True) -> tuple[list[float], float | None]:
+    """Tip deflection at rest (rest_state) [m]: ([MPM per ridge], bonds alone or None), the tip of tip_sag."""
+    tip = np.flatnonzero(sim.model.rest_x[:, 0] > L - 0.6 * sim.scene.grid.cell_size)
+    mpm, u_bonds = rest_state(sim, ridges, bonds)
+    return [float(-u[tip, 1].mean()) for u in mpm], None if u_bonds is None else float(-u_bonds[tip, 1].mean())
 
 
 def whole_layers(dx: float, H: float) -> float:
