@@ -14,6 +14,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse.linalg import spsolve
 
+from pdmpm_cli.engine.bspline import cubic_weights
 from pdmpm_cli.study.sim import Sim
 
 G = 9.81
@@ -204,10 +205,12 @@ def grid_weights(sim: Sim) -> sparse.csr_matrix:
     """N_Ip, the cubic B-spline weight of node I at particle p's rest position (nodes x particles)."""
     m = sim.model
     f = (m.rest_x - m.origin) / m.dx
-    base = np.floor(f).astype(np.int64) - 1
+    base = np.empty(f.shape, dtype=np.int64)
+    w = np.empty(f.shape + (4,))  # (n, 3 axes, 4 nodes): the engine's own weights
+    for p, a in np.ndindex(f.shape):
+        base[p, a] = cubic_weights(f[p, a], w[p, a])
     idx = base[:, None, :] + np.arange(4)[None, :, None]  # (n, 4 nodes, 3 axes)
-    d = np.abs(f[:, None, :] - idx)
-    w = np.where(d < 1, 0.5 * d**3 - d**2 + 2 / 3, (2 - np.minimum(d, 2)) ** 3 / 6)
+    w = w.transpose(0, 2, 1)
     _, ny, nz = m.grid_shape
     node = (idx[:, :, None, None, 0] * ny + idx[:, None, :, None, 1]) * nz + idx[:, None, None, :, 2]
     wt = w[:, :, None, None, 0] * w[:, None, :, None, 1] * w[:, None, None, :, 2]
