@@ -120,6 +120,7 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
     # Crack particles meet the grid's material after its update and before intact particles read it back.
     phases += ["p2g", "grid_update", *(["crack"] if fracture else []), "g2p", *(["fracture"] if fracture else [])]
     n, nb, nodes = disc.n_particles, disc.n_bonds, model.grid_shape
+    threads = numba.get_num_threads() if sim.backend == "cpu" else 0  # per-thread scatter targets (CPU only)
     fields = {
         "particle_x": ((n, 3), "f8"), "particle_v": ((n, 3), "f8"), "particle_C": ((n, 3, 3), "f8"),
         "particle_force": ((n, 3), "f8"), "rest_x": ((n, 3), "f8"), "particle_volume": ((n,), "f8"),
@@ -128,11 +129,11 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
         "bond_start": ((n + 1,), "i8"), "bond_nbr": ((nb,), "i4"),
         # Per-thread P2G grids keep the CPU race-free; the GPU adds into the one grid with atomics.
         "grid": (nodes + (4,), "f8"),
-        "grid_private": ((numba.get_num_threads() if sim.backend == "cpu" else 0,) + nodes + (4,), "f8"),
+        "grid_private": ((threads,) + nodes + (4,), "f8"),
     }
     pair_forces = any(MATERIALS[k].pair_forces for k in used)
     if pair_forces:  # the elastic pair forces scatter into one force array per thread (CPU)
-        fields["particle_force_private"] = ((numba.get_num_threads() if sim.backend == "cpu" else 0, n, 3), "f8")
+        fields["particle_force_private"] = ((threads, n, 3), "f8")
     if pair_forces or need_fbar:  # reference bond factors, computed once
         fields["bond_wv"] = ((nb,), "f8")
         fields["bond_inv_len"] = ((nb,), "f8")

@@ -56,10 +56,14 @@ class Study:
     quantity: str
     runs: list[Run]
 
+    def measured(self, ladder: str) -> list[Run]:
+        """The ladder's runs with a positive error (the ones a log-log fit and plot can use)."""
+        return [r for r in self.runs if r.ladder == ladder and np.isfinite(r.error) and r.error > 0]
+
     def slope(self, ladder: str, x: str) -> tuple[float, int]:
         """Least-squares slope of log(error) against log(x) ('h', 'dt' or 'wall') over the ladder's runs with a
         positive error, and how many runs that is (NaN below 2)."""
-        rows = [r for r in self.runs if r.ladder == ladder and np.isfinite(r.error) and r.error > 0]
+        rows = self.measured(ladder)
         if len(rows) < 2:
             return float("nan"), len(rows)
         xs = [{"h": r.cell_size_m, "dt": r.dt_s, "wall": r.wall_s}[x] for r in rows]
@@ -189,9 +193,7 @@ def scene_study(path: Path, overrides=(), variant: str | None = None, levels: in
     base = scene.grid.cell_size
     cells = cell_ladder(finest or base, ratio, levels)
     preps = {c: prepare(path, [*overrides, *level_overrides(scene, c / base)], variant) for c in cells}
-    state = State.allocate(preps[cells[0]].model, preps[cells[0]].disc, preps[cells[0]].plan.fields)
-    solver = Solver(preps[cells[0]].model, preps[cells[0]].plan)
-    solver.start(state)
+    state, solver = _start(preps[cells[0]])
     _warm_up(solver, state)
 
     def execute(ladder, level, prep: Prepared):
@@ -213,11 +215,17 @@ def _warm_up(solver: Solver, state: State):
     solver.advance(state, state.time + 3 * solver.plan.dt_max)
 
 
-def _run_scene(prep: Prepared) -> tuple[State, float]:
-    """Step a prepared scene to its end in memory, frame by frame as the runner does; the stepping's wall time."""
+def _start(prep: Prepared) -> tuple[State, Solver]:
+    """A fresh State and a started Solver for a prepared scene."""
     state = State.allocate(prep.model, prep.disc, prep.plan.fields)
     solver = Solver(prep.model, prep.plan)
     solver.start(state)
+    return state, solver
+
+
+def _run_scene(prep: Prepared) -> tuple[State, float]:
+    """Step a prepared scene to its end in memory, frame by frame as the runner does; the stepping's wall time."""
+    state, solver = _start(prep)
     t0 = time.perf_counter()
     for f in range(1, prep.plan.frames + 1):
         solver.advance(state, f * prep.plan.frame_dt)
@@ -255,7 +263,7 @@ def plot(path: Path, study: Study) -> Path:
     ladders = [lad for lad in ("space", "time") if any(r.ladder == lad and np.isfinite(r.error) for r in study.runs)]
     fig, axes = plt.subplots(1, 1 + len(ladders), figsize=(4.2 * (1 + len(ladders)), 3.4), dpi=80)
     for ladder, style in zip(ladders, ("o-", "s--")):
-        rows = [r for r in study.runs if r.ladder == ladder and np.isfinite(r.error) and r.error > 0]
+        rows = study.measured(ladder)
         q, _ = study.slope(ladder, "wall")
         against = {"space": "analytic" if rows[0].reference.startswith("analytic") else "finest", "time": "next dt"}
         axes[0].loglog([r.wall_s for r in rows], [r.error for r in rows], style,
@@ -263,7 +271,7 @@ def plot(path: Path, study: Study) -> Path:
     axes[0].set(xlabel="wall time [s]", ylabel="error [-]", title=f"{study.name}: error against run time")
     for ax, ladder in zip(axes[1:], ladders):
         x = "h" if ladder == "space" else "dt"
-        rows = [r for r in study.runs if r.ladder == ladder and np.isfinite(r.error) and r.error > 0]
+        rows = study.measured(ladder)
         xs, ys = [r.cell_size_m if x == "h" else r.dt_s for r in rows], [r.error for r in rows]
         p, _ = study.slope(ladder, x)
         ax.loglog(xs, ys, "o-" if x == "h" else "s--", label=f"slope {p:.2f}")
