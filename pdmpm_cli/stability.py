@@ -14,17 +14,16 @@ of dx / dt, the grid cells per step of the at-rest time step (`impact`). A run i
 - `error`: a kernel raised an arithmetic error (a crash; counted as unstable).
 
 Forced steps: the Plan reduces any user dt to its bound, by design. To measure the real threshold,
-`run_case(..., dt_factor=k)` replaces the Plan's step with a constant k times the predicted bound
-(dataclasses.replace on a copy of the Plan, never reachable from `pdmpm run`), and every such row is marked
-`forced`. The predicted bound is the engine's own bound at safety factors 1: dt_pred = min(dx / (c + |v0|),
-dt_bond), c the P-wave speed sqrt(M / rho), |v0| the largest initial speed and dt_bond the Silling & Askari bound
-of our bonds; the automatic step is min(cfl dx / (c + |v|), bond_safety dt_bond), cfl 0.4, bond_safety 0.7
-(docs/method.md, 'Time step'). Measured (docs/results.md, 'Stability'): bodies on the grid go unstable at
-0.68-2.08 dx / c whatever their stiffness, lam / mu, model, particles per cell or horizon, 3-16x above dt_bond;
-crack particles at 2.6 dt_bond. `threshold` bisects k (geometrically, between 1/4 and 8) for the largest stable
-constant step.
+`run_case(..., dt_factor=k)` replaces the Plan's step with k times the engine's predicted stability limit
+(engine.spectrum: 2 / omega_max of the linearised grid operator; of the crack particles' own, off the grid, while
+one holds a bond; and a collider's depth over the initial speed, which a particle must not cross in one step), on
+a copy of the Plan never reachable from `pdmpm run`; every such row is marked `forced`. `threshold` bisects k
+(geometrically, between 1/4 and 8) for the largest stable one. Measured (docs/results.md, 'Stability'): 0.70-1.76
+for all 23 threshold cases, while the automatic step, min(cfl dx / (c + |v|), bond_safety dt_bond), stays 4.5-36x
+below the limit (docs/method.md, 'Time step').
 """
 
+import copy
 import dataclasses
 import math
 import time
@@ -237,15 +236,21 @@ class Growth(Exception):
 @dataclass
 class Prepared:
     prep: object  # runner.Prepared
+    state: object  # the starting State (prestretch applied), copied by every run
     v0: float  # largest initial speed [m/s]
-    dt_pred: float  # predicted critical step: the engine's bound at safety factors 1 [s]
+    critical: object  # engine.spectrum.CriticalSteps of the starting state
+    dt_pred: float  # predicted limit at the start: critical.predicted(v0, no crack particles) [s]
     dt_bond: float  # bond bound before bond_safety [s]
     dt_wave: float  # dx / c [s]
-    bound: str  # which bound dt_pred is: cfl or bonds
+    bound: str  # which limit dt_pred is: grid or tunnel
 
 
 def prepare_case(case: Case, path: Path = Path("stability.yaml")) -> Prepared:
-    """Validate and discretise the case's scene; impact speeds are set from the at-rest automatic step."""
+    """Validate and discretise the case's scene (impact speeds are set from the at-rest automatic step), apply
+    the prestretch and predict its stability limits (engine.spectrum)."""
+    from pdmpm_cli.engine.model import State
+    from pdmpm_cli.engine.solver import Solver
+    from pdmpm_cli.engine.spectrum import critical_steps
     from pdmpm_cli.runner import prepare_scene
     from pdmpm_cli.scene.schema import Scene
 
@@ -258,10 +263,22 @@ def prepare_case(case: Case, path: Path = Path("stability.yaml")) -> Prepared:
         prep = prepare_scene(Scene.model_validate(scene_dict), path)
     v0 = float(np.linalg.norm(prep.disc.velocity, axis=1).max()) if prep.disc.n_particles else 0.0
     plan = prep.plan
-    dt_cfl = plan.cell_size / (plan.wave_speed + v0)
-    dt_bond = min(b.dt_bond for b in plan.bodies)
-    return Prepared(prep, v0, min(dt_cfl, dt_bond), dt_bond, plan.cell_size / plan.wave_speed,
-                    "cfl" if dt_cfl <= dt_bond else "bonds")
+    state = State.allocate(prep.model, prep.disc, plan.fields)
+    stretch = np.asarray(case.prestretch)
+    for s, e in prep.model.body_ranges:
+        centre = state.particle_x[s:e].mean(axis=0)
+        state.particle_x[s:e] = centre + (state.particle_x[s:e] - centre) * stretch
+    solver = Solver(prep.model, plan)
+    solver.start(state)
+    critical = critical_steps(solver, state)
+    dt_pred = critical.predicted(v0, False)
+    return Prepared(prep, state, v0, critical, dt_pred, min(b.dt_bond for b in plan.bodies),
+                    plan.cell_size / plan.wave_speed, "grid" if dt_pred == critical.grid else "tunnel")
+
+
+def cracked(state) -> bool:
+    """Whether a crack particle still holds a bond: then the crack particles' own limit applies."""
+    return bool(len(state.particle_crack)) and bool(np.any((state.particle_crack == 1) & (state.particle_damage < 1)))
 
 
 def total_energy(solver, state, floor: float) -> float:
@@ -273,9 +290,8 @@ def total_energy(solver, state, floor: float) -> float:
 
 
 def run_case(case: Case, dt_factor: float | None = None, ready: Prepared | None = None) -> dict:
-    """Run one case with the automatic step, or (dt_factor) a forced constant step of dt_factor * dt_pred,
-    and classify it. Returns one row of the sweep table."""
-    from pdmpm_cli.engine.model import State
+    """Run one case with the automatic step, or (dt_factor) a forced step of dt_factor times the predicted limit
+    of the starting state (the crack particles' own limit included while one holds a bond), and classify it. Returns one row of the sweep table."""
     from pdmpm_cli.engine.solver import Solver, pin_speed
 
     row = {"case": case.name, "category": case.category, "parameter": case.parameter,
@@ -288,18 +304,15 @@ def run_case(case: Case, dt_factor: float | None = None, ready: Prepared | None 
         return row | {"class": "refused", "message": message, "wall_s": time.perf_counter() - t0}
     prep, plan = ready.prep, ready.prep.plan
     duration = case.steps * plan.dt_max
+    state = copy.deepcopy(ready.state)
     if dt_factor is not None:
-        dt = dt_factor * ready.dt_pred
         # The one place a step above the bound is taken: a copy of the Plan, flagged in every row.
-        plan = dataclasses.replace(plan, dt_max=dt, dt_cfl=math.inf, frame_dt=math.inf)
-        duration = max(duration, FORCED_STEPS * dt)
-    state = State.allocate(prep.model, prep.disc, plan.fields)
-    stretch = np.asarray(case.prestretch)
-    for s, e in prep.model.body_ranges:
-        centre = state.particle_x[s:e].mean(axis=0)
-        state.particle_x[s:e] = centre + (state.particle_x[s:e] - centre) * stretch
+        plan = dataclasses.replace(plan, dt_max=math.inf, dt_cfl=math.inf, frame_dt=math.inf)
+        duration = max(duration, FORCED_STEPS * dt_factor * ready.dt_pred)
     solver = Solver(prep.model, plan)
     solver.start(state)
+    if dt_factor is not None:
+        solver.step_size = lambda: dt_factor * ready.critical.predicted(ready.v0, cracked(state))
     g = np.asarray(prep.model.gravity, dtype=float)
     corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)])
     lo, hi = np.asarray(prep.scene.grid.domain.min), np.asarray(prep.scene.grid.domain.max)
@@ -387,8 +400,10 @@ def threshold(case: Case, lo: float = LO, hi: float = HI, bisections: int = BISE
             mid = math.sqrt(lo * hi)
             lo, hi = (mid, hi) if stable(mid) else (lo, mid)
     measured = lo if low_ok else 0.0
+    crit = ready.critical
     return {"case": case.name, "category": case.category, "parameter": case.parameter, "dt_pred": ready.dt_pred,
-            "dt_bond": ready.dt_bond, "dt_auto": ready.prep.plan.dt_max, "bound": ready.bound,
+            "dt_grid": crit.grid, "dt_particles": crit.particles,
+            "dt_tunnel": crit.tunnel_depth / ready.v0 if ready.v0 > 0 else math.inf, "dt_bond": ready.dt_bond, "dt_auto": ready.prep.plan.dt_max, "bound": ready.bound,
             "measured": measured, "unstable": hi if bracketed else math.inf if low_ok else lo, "bracketed": bracketed,
             "within_2x": bracketed and 0.5 <= measured <= 2.0, "runs": len(runs),
             "bond_units": measured * ready.dt_pred / ready.dt_bond,

@@ -81,6 +81,14 @@ def test_validate_explain_prints_plan(small_scene):
         assert text in r.stdout
 
 
+def test_validate_limits_prints_the_predicted_stability_limits(small_scene):
+    r = pdmpm("validate", small_scene, "--limits")
+    assert r.returncode == 0, r.stderr
+    assert "predicted stability limits" in r.stdout and "grid, 2 / omega_max" in r.stdout
+    grid = next(line for line in r.stdout.splitlines() if "grid, 2 / omega_max" in line)
+    assert float(grid.split("│")[-2]) > 3  # the step used is well below the grid's limit
+
+
 def test_override_is_validated(small_scene):
     r = pdmpm("validate", small_scene, "--set", "bodies.0.material.lam=-5")
     assert r.returncode == 2 and "--set bodies.0.material.lam" in r.stderr

@@ -12,7 +12,8 @@ from rich.table import Table
 COLUMNS = ("case", "category", "parameter", "class", "energy_ratio", "energy_end", "max_speed", "cells_per_step",
            "steps", "dt_ratio", "dt_pred", "dt_bond", "particles", "isolated", "forced", "dt_factor", "wall_s",
            "message")
-THRESHOLD_COLUMNS = ("case", "category", "parameter", "bound", "dt_pred", "dt_bond", "dt_auto", "measured",
+THRESHOLD_COLUMNS = ("case", "category", "parameter", "bound", "dt_pred", "dt_grid", "dt_particles", "dt_tunnel",
+                     "dt_bond", "dt_auto", "measured",
                      "unstable", "wave_units", "bond_units", "margin", "v0_cells", "failure", "within_2x", "runs")
 COLOUR = {"stable": "green", "refused": "cyan"}
 
@@ -44,16 +45,16 @@ def stability(
         "--quick", help="A reduced set (12 cases, one threshold): seconds on one core once the kernels are compiled.")
     ] = False,
     thresholds: Annotated[bool, typer.Option(
-        "--thresholds/--no-thresholds", help="Also bisect a forced constant dt for the largest stable step on the "
-        "representative cases, against the predicted bound.")] = True,
+        "--thresholds/--no-thresholds", help="Also bisect a forced dt for the largest stable step on the "
+        "representative cases, against the predicted limit.")] = True,
     out: Annotated[Path, typer.Option(
         "--out", "-o", help="Folder for stability, thresholds and forced (every forced run) .csv / .md.")] = Path("outputs/stability"),
     list_: Annotated[bool, typer.Option("--list", help="List the cases and what each probes, and exit.")] = False,
 ):
     """Run the stability sweep with the automatic time step and classify each case (stable, nan, outside,
     energy, refused, error); then bisect forced oversize steps (flagged 'forced', never reachable from
-    `pdmpm run`) for the measured threshold against the engine's predicted bound, min(dx / (c + v0), dt_bond)
-    (c the P-wave speed, dt_bond the bond bound).
+    `pdmpm run`) for the measured threshold against the engine's predicted limit: 2 / omega_max of the grid
+    operator, of the crack particles' while one holds a bond, and a collider's depth over the initial speed.
     Exit code 1 if any automatic-step case is unstable."""
     from pdmpm_cli import stability as st
 
@@ -105,7 +106,7 @@ def stability(
             results.append(st.threshold(c, on_run=on_run))
         if results:
             write_tables(out / "forced", COLUMNS, forced)  # every forced run, flagged forced = True
-            table = Table(title="time-step threshold: largest stable forced dt / predicted bound")
+            table = Table(title="time-step threshold: largest stable forced dt / predicted limit")
             for column in THRESHOLD_COLUMNS:
                 table.add_column(column, overflow="fold")
             for r in results:

@@ -15,6 +15,9 @@ def validate(
     set_: SetOpt = [],
     variant: VariantOpt = None,
     explain: Annotated[bool, typer.Option("--explain", help="Print the Plan: phases, arrays, dt bounds, counts.")] = False,
+    limits: Annotated[bool, typer.Option(
+        "--limits", help="Also predict the largest stable step (linear stability of the grid and crack-particle "
+        "operators at the start; costs tens of force evaluations).")] = False,
 ):
     """Validate a scene file: schema, geometry and bonds. Exit code 2 on any problem."""
     from pdmpm_cli.runner import prepare
@@ -27,6 +30,33 @@ def validate(
     console.print(f"{scene}: OK ({plan.particles} particles, {plan.bonds} bonds, {plan.frames} frames)")
     if explain:
         print_plan(console, plan)
+    if limits:
+        print_limits(console, prep)
+
+
+def print_limits(console: Console, prep):
+    """The predicted stability limits (engine.spectrum) beside the step the Plan takes."""
+    from pdmpm_cli.engine.model import State
+    from pdmpm_cli.engine.solver import Solver
+    from pdmpm_cli.engine.spectrum import critical_steps
+
+    plan = prep.plan
+    state = State.allocate(prep.model, prep.disc, plan.fields)
+    solver = Solver(prep.model, plan)
+    solver.start(state)
+    crit = critical_steps(solver, state)
+    wave = plan.cell_size / plan.wave_speed
+    table = Table(title="predicted stability limits (largest stable constant step)")
+    table.add_column("limit")
+    table.add_column(escape("value [s]"), justify="right")
+    table.add_column(escape("[dx / c]"), justify="right")
+    table.add_column(escape("/ step used"), justify="right")
+    rows = {"grid, 2 / omega_max": crit.grid, "crack particles, 2 / omega_max": crit.particles}
+    if solver.vmax > 0:
+        rows[f"tunnelling, {crit.tunnel_depth:.3g} m / initial speed"] = crit.tunnel_depth / solver.vmax
+    for label, value in rows.items():
+        table.add_row(escape(label), f"{value:.4g}", f"{value / wave:.3g}", f"{value / plan.dt_max:.3g}")
+    console.print(table)
 
 
 def print_plan(console: Console, plan):
