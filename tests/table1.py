@@ -169,7 +169,7 @@ BUNNIES = ("grid.cell_size=0.03",)
 
 CASES: dict[str, Case] = {
     **{f"cloth_{v}": Case("cloth.yaml", CLOTH, fold_amplitude, {"fold_rms_mm": 0.1, "sag_mm": 0.02},
-                          "bodies.0.material.lam=5e5", variant=v) for v in ("soft", "medium", "stiff")},
+                          "bodies.0.material.mu=5e4", variant=v) for v in ("soft", "medium", "stiff")},
     "beams": Case("beams.yaml", ("grid.cell_size=0.075", *(f"bodies.{i}.geometry.spacing=0.0375" for i in range(3)),
                                  *(f"bodies.{i}.geometry.layers=2" for i in range(3)), "simulation.duration=2.0"),
                   beam_sags, {"sag_mu0_mm": 0.03, "sag_mu50_mm": 0.03, "sag_mu500_mm": 0.03},
