@@ -156,8 +156,12 @@ def grid_update(grid, dt, gravity, wind, drag, origin, dx, box, t_new, colliders
 @njit(cache=True, inline="always")
 def pin_share(stop, t_new, dt):
     """Share of the step t_new - dt .. t_new a pin that stops at `stop` still moves: its particles then travel
-    velocity * stop exactly, whatever the steps (1 for a pin that never stops, stop = inf)."""
-    return min(max((stop - (t_new - dt)) / dt, 0.0), 1.0)
+    velocity * stop exactly, whatever the steps (1 for a pin that never stops, stop = inf). Branches, not the
+    builtin min and max, which numba 0.68's CUDA target cannot compile (cuda.kernels compiles this too)."""
+    share = (stop - (t_new - dt)) / dt
+    if share >= 1.0:
+        return 1.0
+    return share if share > 0.0 else 0.0
 
 
 @njit(parallel=True, cache=True)
