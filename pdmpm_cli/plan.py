@@ -151,6 +151,7 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
     if len(disc.pin_mask):
         fields["pin_mask"] = ((n,), "u1")
         fields["pin_velocity"] = ((n, 3), "f8")
+        fields["pin_stop"] = ((n,), "f8")
     memory = sum(int(np.prod(shape)) * np.dtype(dt).itemsize for shape, dt in fields.values())
     return Plan(
         phases=tuple(phases), fields=fields, bodies=tuple(bodies), particles=n, bonds=nb,

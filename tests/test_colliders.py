@@ -97,6 +97,34 @@ def test_pinned_particles_hold_and_move(sim_factory):
     assert (sim.state.particle_x[tip, 1] - x0[tip, 1]).mean() < -1e-3
 
 
+def test_pin_that_stops_travels_velocity_times_stop_then_holds(sim_factory):
+    """A pin with stop = 0.1234 s (inside a step) moves at 0.1 m/s, then holds: its particles travel exactly
+    0.01234 m and are at rest from then on; a second pin without stop keeps moving."""
+    body = sim_factory().scene.bodies[0].model_dump()
+    body["geometry"] = {"mode": "cloud", "sampling": "jittered",
+                        "shape": {"type": "box", "center": [0.5, 0.6, 0.5], "size": [0.4, 0.1, 0.1]}}
+    box = {"type": "box", "center": [0.325, 0.6, 0.5], "size": [0.05, 0.2, 0.2]}
+    body["pins"] = [{"region": box, "velocity": [0, 0, 0.1], "stop": 0.1234},
+                    {"region": {**box, "center": [0.675, 0.6, 0.5]}, "velocity": [0, 0, 0.1]}]
+    sim = sim_factory({"gravity": [0, -9.81, 0], "bodies": [body]})
+    x0 = sim.state.particle_x.copy()
+    stops = sim.model.pin_mask & (x0[:, 0] < 0.5)
+    moves = sim.model.pin_mask & (x0[:, 0] > 0.5)
+    assert stops.sum() > 10 and moves.sum() > 10
+    sim.advance(0.3)
+    np.testing.assert_allclose(sim.state.particle_x[stops], x0[stops] + [0, 0, 0.01234], atol=1e-12)
+    np.testing.assert_allclose(sim.state.particle_x[moves], x0[moves] + [0, 0, 0.03], atol=1e-12)
+    assert np.abs(sim.state.particle_v[stops]).max() == 0.0
+
+
+def test_pin_stop_needs_a_moving_pin_and_a_positive_time(sim_factory):
+    body = sim_factory().scene.bodies[0].model_dump()
+    pin = {"region": {"type": "box", "center": [0.5, 0.5, 0.5], "size": [0.1, 0.1, 0.1]}}
+    for bad, message in (({"stop": 0.2}, "does not move"), ({"velocity": [0, 0, 0.1], "stop": 0.0}, "greater than 0")):
+        with pytest.raises(ValueError, match=message):
+            Scene.model_validate({**sim_factory().scene.model_dump(), "bodies": [{**body, "pins": [{**pin, **bad}]}]})
+
+
 def test_scene_without_pins_allocates_none(sim_factory):
     sim = sim_factory()
     assert "pin_mask" not in sim.plan.fields and sim.model.pin_mask.shape == (0,)

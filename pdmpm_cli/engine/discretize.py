@@ -88,7 +88,8 @@ class Discretization:
     bond_start: np.ndarray  # (n + 1,) int64
     bond_nbr: np.ndarray  # (n_bonds,) int32
     pin_mask: np.ndarray  # (n,) bool, or (0,) when the scene has no pins
-    pin_velocity: np.ndarray  # (n, 3), or (0, 3)
+    pin_velocity: np.ndarray  # (n, 3), or (0, 3) [m/s]
+    pin_stop: np.ndarray  # (n,) time each pin stops [s] (inf: never), or (0,)
     meshes: list[EmbeddedMesh]  # shell surfaces and Voronoi cells, in body order
     notes: list[str]  # repairs made to input meshes, reported as warnings
 
@@ -231,7 +232,7 @@ def discretize(scene: Scene, base_dir: Path) -> Discretization:
     inner_lo = np.asarray(scene.grid.domain.min) + 3.5 * dx
     inner_hi = np.asarray(scene.grid.domain.max) - 3.5 * dx
     xs, vs, grads, masses, vols, ranges, spacing, horizon, pairs, embedded = [], [], [], [], [], [], [], [], [], []
-    pinned, pin_v, notes = [], [], []
+    pinned, pin_v, pin_t, notes = [], [], [], []
     start = 0
     for b, body in enumerate(scene.bodies):
         sample = SAMPLERS[body.geometry.mode](body, base_dir, dx, rng)
@@ -252,10 +253,12 @@ def discretize(scene: Scene, base_dir: Path) -> Discretization:
         grad = np.broadcast_to(spin, (n, 3, 3)).copy()
         mask = np.zeros(n, dtype=bool)
         pv = np.zeros((n, 3))
+        pt = np.full(n, np.inf)
         for pin in body.pins:
             inside = pin_particles(pin, body, sample, base_dir) & ~mask
             mask |= inside
             pv[inside] = pin.velocity
+            pt[inside] = np.inf if pin.stop is None else pin.stop
             v[inside] = pin.velocity
             grad[inside] = 0.0
         if sample.mesh is not None:
@@ -272,6 +275,7 @@ def discretize(scene: Scene, base_dir: Path) -> Discretization:
         masses.append(body.material.density * sample.volume)
         pinned.append(mask)
         pin_v.append(pv)
+        pin_t.append(pt)
         ranges.append((start, start + n))
         spacing.append(sample.h)
         horizon.append(sample.delta)
@@ -296,6 +300,7 @@ def discretize(scene: Scene, base_dir: Path) -> Discretization:
         bond_nbr=bond_nbr,
         pin_mask=np.concatenate(pinned) if has_pins else np.zeros(0, dtype=bool),
         pin_velocity=np.concatenate(pin_v) if has_pins else np.zeros((0, 3)),
+        pin_stop=np.concatenate(pin_t) if has_pins else np.zeros(0),
         meshes=embedded,
         notes=notes,
     )

@@ -25,7 +25,8 @@ class Model:
     particle_coef: np.ndarray  # (n,) calibration c_p = 5 / omega_p
     particle_omega: np.ndarray  # (n,) weighted volume sum_q w V_q [m^3]
     pin_mask: np.ndarray
-    pin_velocity: np.ndarray
+    pin_velocity: np.ndarray  # (n, 3) [m/s], or (0, 3)
+    pin_stop: np.ndarray  # (n,) time each pin stops [s] (inf: never), or (0,)
     body_ranges: list
     body_horizon: np.ndarray
     body_spacing: np.ndarray  # particle spacing h of each body [m]
@@ -55,7 +56,8 @@ class Model:
             rest_x=disc.rest_x, particle_volume=disc.volume, particle_mass=disc.mass, particle_body=disc.body,
             bond_start=disc.bond_start, bond_nbr=disc.bond_nbr, particle_Kinv=kinv,
             particle_coef=calibration_coefficients(omega, disc.body, disc.body_horizon), particle_omega=omega,
-            pin_mask=disc.pin_mask, pin_velocity=disc.pin_velocity, body_ranges=disc.body_ranges,
+            pin_mask=disc.pin_mask, pin_velocity=disc.pin_velocity, pin_stop=disc.pin_stop,
+            body_ranges=disc.body_ranges,
             body_horizon=disc.body_horizon, body_spacing=disc.body_spacing, materials=[b.material for b in scene.bodies],
             fracture=[b.fracture for b in scene.bodies],
             colliders=collider_table(scene.colliders), gravity=np.asarray(scene.gravity, dtype=np.float64),

@@ -103,8 +103,8 @@ class Solver:
     def g2p(self, state: State, dt: float):
         m = self.model
         vmax, bad = g2p(state.grid, dt, m.origin, 1.0 / m.dx, state.time + dt, m.colliders, m.pin_mask,
-                        m.pin_velocity, state.particle_crack, state.particle_x, state.particle_v, state.particle_C,
-                        particle_chunks())
+                        m.pin_velocity, m.pin_stop, state.particle_crack, state.particle_x, state.particle_v,
+                        state.particle_C, particle_chunks())
         self.vmax = max(vmax, self.crack_vmax)
         if bad:
             self.fail_nonfinite(state)

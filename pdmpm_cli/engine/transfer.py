@@ -153,8 +153,19 @@ def grid_update(grid, dt, gravity, wind, drag, origin, dx, box, t_new, colliders
                 node[1], node[2], node[3] = v[0], v[1], v[2]
 
 
+@njit(cache=True, inline="always")
+def pin_share(stop, t_new, dt):
+    """Share of the step t_new - dt .. t_new a pin that stops at `stop` still moves: its particles then travel
+    velocity * stop exactly, whatever the steps (1 for a pin that never stops, stop = inf). Branches, not the
+    builtin min and max, which numba 0.68's CUDA target cannot compile (cuda.kernels compiles this too)."""
+    share = (stop - (t_new - dt)) / dt
+    if share >= 1.0:
+        return 1.0
+    return share if share > 0.0 else 0.0
+
+
 @njit(parallel=True, cache=True)
-def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, particle_crack, particle_x,
+def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, particle_crack, particle_x,
         particle_v, particle_C, chunks):
     """G2P velocity and APIC affine matrix (step 5), pins, particle collisions (step 6), advection; crack-surface
     particles are left to their own integrator. Particles go in `chunks` static chunks, each with its own
@@ -231,7 +242,8 @@ def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, part
                 b22 += w * z2
             pinned = has_pins and pin_mask[p]
             if pinned:
-                v0, v1, v2 = pin_velocity[p, 0], pin_velocity[p, 1], pin_velocity[p, 2]
+                share = pin_share(pin_stop[p], t_new, dt)
+                v0, v1, v2 = share * pin_velocity[p, 0], share * pin_velocity[p, 1], share * pin_velocity[p, 2]
                 b00 = b01 = b02 = b10 = b11 = b12 = b20 = b21 = b22 = 0.0
             elif colliders.shape[0]:
                 v[0], v[1], v[2] = v0, v1, v2

@@ -263,17 +263,29 @@ class Fracture(Strict):
 
 class Pin(Strict):
     """Held particles (a clamp, a clothes peg): they move with `velocity` and ignore forces. Give a `region`, or
-    for shell bodies `vertices` of the surface mesh (the particles within one spacing of them are held)."""
+    for shell bodies `vertices` of the surface mesh (the particles within one spacing of them are held). With
+    `stop`, the pin moves until that time and then holds still where it is (a peg carried to its place, a gripper
+    that pulls and stops): it travels velocity * stop."""
 
     region: Shape | None = Field(None, description="Particles inside this shape are held.")
     vertices: list[int] | None = Field(
         None, min_length=1, description="Shell bodies: indices (0-based) of surface-mesh vertices to hold.")
     velocity: Vec3 = Field((0.0, 0.0, 0.0), description="Prescribed velocity of the pinned particles [m/s].")
+    stop: float | None = Field(
+        None, gt=0, description="Time at which the pin stops moving and holds still from then on [s]; absent: it "
+        "moves with `velocity` for the whole run.")
 
     @model_validator(mode="after")
     def _one(self):
         if (self.region is None) == (self.vertices is None):
             raise ValueError("give exactly one of region (a shape) and vertices (surface-mesh vertex indices)")
+        return self
+
+    @model_validator(mode="after")
+    def _stop_moves(self):
+        if self.stop is not None and not any(self.velocity):
+            raise ValueError(f"stop: {self.stop} s ends the motion of a pin that does not move (velocity is 0); "
+                             "give the pin a velocity, or leave out stop")
         return self
 
 

@@ -17,7 +17,7 @@ from pdmpm_cli.engine.bonds import bond_vector
 from pdmpm_cli.engine.bspline import cubic_weights
 from pdmpm_cli.engine.colliders import collide_all, push_out, respond, signed_distance
 from pdmpm_cli.engine.materials.elastic import averaged_bond
-from pdmpm_cli.engine.transfer import WALL, particle_speed, stencil_on_grid
+from pdmpm_cli.engine.transfer import WALL, particle_speed, pin_share, stencil_on_grid
 
 # Slots of the per-step statistics array the host reads once per step.
 STAT_LO, STAT_HI = 0, 3  # per-axis min and max of the particle positions after G2P [m] (the next P2G's node box)
@@ -46,6 +46,7 @@ d_averaged_bond = device(averaged_bond)
 d_cubic_weights = device(cubic_weights, np=math)  # CUDA has no np.floor; math.floor is the same on finite floats
 d_stencil_on_grid = device(stencil_on_grid)
 d_particle_speed = device(particle_speed)
+d_pin_share = device(pin_share)
 d_signed_distance = device(signed_distance, max=larger)
 d_respond = device(respond)
 d_collide_all = device(collide_all, signed_distance=d_signed_distance, respond=d_respond)
@@ -266,8 +267,8 @@ def reset_stats(stats):
 
 
 @cuda.jit(cache=True)
-def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, particle_x, particle_v, particle_C,
-        stats):
+def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, particle_x, particle_v,
+        particle_C, stats):
     """G2P velocity and APIC affine matrix (step 5), pins, particle collisions (step 6) and advection
     (transfer.g2p); the max speed, non-finite count and position bounds go to `stats` with atomics."""
     p = cuda.grid(1)
@@ -305,8 +306,9 @@ def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, part
                     b[a, 2] += va * dx2
     pinned = pin_mask.shape[0] > 0 and pin_mask[p] != 0
     if pinned:
+        share = d_pin_share(pin_stop[p], t_new, dt)
         for a in range(3):
-            v[a] = pin_velocity[p, a]
+            v[a] = share * pin_velocity[p, a]
             for c in range(3):
                 b[a, c] = 0.0
     elif colliders.shape[0]:

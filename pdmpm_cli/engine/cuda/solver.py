@@ -52,7 +52,7 @@ class CudaSolver(Solver):
         self.gravity = tuple(float(v) for v in m.gravity)
         self.wind = tuple(float(v) for v in m.wind_velocity)
         self.dev = {name: cuda.to_device(getattr(m, name)) for name in (
-            "rest_x", "particle_volume", "particle_mass", "particle_coef", "pin_mask", "pin_velocity", "colliders")}
+            "rest_x", "particle_volume", "particle_mass", "particle_coef", "pin_mask", "pin_velocity", "pin_stop", "colliders")}
         self.dev["particle_Kinv"] = cuda.to_device(m.particle_Kinv if self.fbar_bodies else DUMMY_FBAR)
         self.dev["grid"] = cuda.device_array(m.grid_shape + (4,))
         self.stats = np.zeros(k.N_STATS)
@@ -169,7 +169,8 @@ class CudaSolver(Solver):
         d, m = self.dev, self.model
         launch(k.reset_stats, 1, d["stats"])
         launch(k.g2p, m.n_particles, d["grid"], dt, self.origin, 1.0 / m.dx, state.time + dt, d["colliders"],
-               d["pin_mask"], d["pin_velocity"], d["particle_x"], d["particle_v"], d["particle_C"], d["stats"])
+               d["pin_mask"], d["pin_velocity"], d["pin_stop"], d["particle_x"], d["particle_v"], d["particle_C"],
+               d["stats"])
         d["stats"].copy_to_host(self.stats)
         self.vmax = float(self.stats[k.STAT_VMAX])
         self.yield_residual = float(self.stats[k.STAT_YIELD])
