@@ -169,7 +169,7 @@ def lloyd_relax(pts, inside_fn, lo, h, rng, iterations: int = LLOYD_ITERATIONS, 
     made. Points keep their volume h^3."""
     n = len(pts)
     cells = np.floor((pts - lo) / h)
-    smp = (lo + (np.repeat(cells, samples, axis=0) + rng.random((n * samples, 3))) * h)
+    smp = lo + (np.repeat(cells, samples, axis=0) + rng.random((n * samples, 3))) * h
     smp = smp[np.asarray(inside_fn(smp), dtype=bool)]
     for _ in range(iterations):
         idx = cKDTree(pts).query(smp)[1]
