@@ -123,15 +123,25 @@ def primitive_kwargs(shape) -> dict:
 
 
 def sample_cloud(body, base_dir: Path, dx: float, rng) -> BodySample:
-    """Cloud mode: fill the shape with a (jittered) lattice, minus the cutouts."""
+    """Cloud mode: fill the shape minus the cutouts with a relaxed, jittered or regular lattice (the relaxed points
+    settle against the cutouts' faces as against the shape's)."""
     geo = body.geometry
     h = geo.spacing or 0.5 * dx
     region = shape_region(geo.shape, base_dir)
-    x = sampling.fill_shape(region.inside, region.lo, region.hi, h, sampling=geo.sampling, rng=rng,
-                            what=f"body '{body.name}'")
-    for cut in geo.cutouts:
-        x = x[~shape_region(cut, base_dir).inside(x)]
-    if not len(x):
+    cuts = [shape_region(cut, base_dir) for cut in geo.cutouts]
+
+    def inside(p):
+        keep = np.asarray(region.inside(p), dtype=bool)
+        for cut in cuts:
+            keep &= ~np.asarray(cut.inside(p), dtype=bool)
+        return keep
+
+    try:
+        x = sampling.fill_shape(inside, region.lo, region.hi, h, sampling=geo.sampling, rng=rng,
+                                what=f"body '{body.name}'")
+    except InputError:
+        if not cuts:
+            raise
         raise InputError(f"body '{body.name}': no particles: its shape is empty after the cutouts, or smaller "
                          f"than the spacing {h:.4g} m; enlarge the shape or lower geometry.spacing")
     return BodySample(x, np.full(len(x), h**3), h, geo.horizon * h)

@@ -109,10 +109,12 @@ class CloudGeometry(Strict):
     spacing: float | None = Field(
         None, gt=0, description="Particle spacing h [m]; default half the grid cell size (8 particles per cell)."
     )
-    sampling: Literal["jittered", "lattice"] = Field(
-        "jittered",
-        description="'jittered': one random point per lattice cell (statistically isotropic bonds, default); "
-        "'lattice': cell centres (exactly symmetric families, but anisotropic stiffness).",
+    sampling: Literal["relaxed", "jittered", "lattice"] = Field(
+        "relaxed",
+        description="'relaxed': the jittered points after Lloyd steps towards a centroidal Voronoi tessellation "
+        "(blue noise: isotropic and evenly spaced, default); 'jittered': one random point per lattice cell "
+        "(isotropic, but clumps make thin bodies about 30 % soft); 'lattice': cell centres (exactly symmetric "
+        "families, but anisotropic stiffness).",
     )
     horizon: float = Field(
         2.0, gt=1.0, le=4.0, description="Peridynamic horizon delta as a multiple of the spacing h [-]."
