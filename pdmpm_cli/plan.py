@@ -103,7 +103,7 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
         ))
     wave = max(b.effective["wave_speed"] for b in bodies)
     dt_cfl = sim.cfl * scene.grid.cell_size / wave
-    # The step stays 4.5-36x below the predicted stability limit (engine.spectrum, `validate --limits`): the bond
+    # The step stays 4.5-30x below the predicted stability limit (engine.spectrum, `validate --limits`): the bond
     # bound is kept as an accuracy control, since the CFL step alone (about 3x larger) costs accuracy the
     # verification tests guard (docs/method.md, 'Time step').
     dt_bond = sim.bond_safety * min(b.dt_bond for b in bodies)

@@ -18,8 +18,8 @@ Forced steps: the Plan reduces any user dt to its bound, by design. To measure t
 (engine.spectrum: 2 / omega_max of the linearised grid operator; of the crack particles' own, off the grid, while
 one holds a bond; and a collider's depth over the initial speed, which a particle must not cross in one step), on
 a copy of the Plan never reachable from `pdmpm run`; every such row is marked `forced`. `threshold` bisects k
-(geometrically, between 1/4 and 8) for the largest stable one. Measured (docs/results.md, 'Stability'): 0.70-1.76
-for all 23 threshold cases, while the automatic step, min(cfl dx / (c + |v|), bond_safety dt_bond), stays 4.5-36x
+(geometrically, between 1/4 and 8) for the largest stable one. Measured (docs/results.md, 'Stability'): 0.70-1.49
+for all 23 threshold cases, while the automatic step, min(cfl dx / (c + |v|), bond_safety dt_bond), stays 4.5-30x
 below the limit (docs/method.md, 'Time step').
 """
 
