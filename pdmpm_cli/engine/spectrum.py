@@ -16,7 +16,6 @@ A third limit is geometric: a particle that crosses a collider's solid in one st
 (`tunnel_depth`).
 """
 
-import copy
 import dataclasses
 import math
 
@@ -89,23 +88,26 @@ class CriticalSteps:
 
 
 class _Stiffness:
-    """f(x0 + eps u) - f(x0) by the engine's force phases, on a copy of the state reset before each probe (the
-    viscoelastic forces are incremental)."""
+    """f(x0 + eps u) - f(x0) by the engine's force phases, on a copy of the state whose per-particle and per-bond
+    arrays are reset before each probe (the viscoelastic forces are incremental). The grids and the families are
+    shared, not copied: the force phases never touch them."""
+
+    SHARED = ("grid", "grid_private", "bond_start", "bond_nbr")
 
     def __init__(self, solver, state):
         self.solver = solver
-        self.base = copy.deepcopy(state)
-        self.work = copy.deepcopy(state)
+        self.reset = [f.name for f in dataclasses.fields(state) if f.name not in self.SHARED
+                      and isinstance(getattr(state, f.name), np.ndarray) and getattr(state, f.name).size]
+        self.base = dataclasses.replace(state, **{name: getattr(state, name).copy() for name in self.reset})
+        self.work = dataclasses.replace(state, **{name: getattr(state, name).copy() for name in self.reset})
         self.x0 = state.particle_x.copy()
         self.eps = PROBE * float(np.min(solver.model.body_spacing))
         self.f0 = self.force(self.x0)
 
     def force(self, x) -> np.ndarray:
         w = self.work
-        for f in dataclasses.fields(w):
-            value = getattr(self.base, f.name)
-            if isinstance(value, np.ndarray) and value.size and f.name not in ("bond_start", "bond_nbr"):
-                np.copyto(getattr(w, f.name), value)
+        for name in self.reset:
+            np.copyto(getattr(w, name), getattr(self.base, name))
         w.particle_x[:] = x
         self.solver.fbar(w)
         for kind in self.solver.bodies_of:
