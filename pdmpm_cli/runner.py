@@ -95,6 +95,15 @@ def make_solver(model: Model, plan: Plan):
     return Solver(model, plan)
 
 
+def start_in_memory(prep: Prepared) -> tuple[State, Solver]:
+    """A fresh State and a started CPU Solver for a prepared scene stepped from code (studies, the stability
+    sweep, `validate --limits`) rather than by `simulate`."""
+    state = State.allocate(prep.model, prep.disc, prep.plan.fields)
+    solver = Solver(prep.model, prep.plan)
+    solver.start(state)
+    return state, solver
+
+
 def static_fields(model: Model, meshes=()) -> dict[str, np.ndarray]:
     from pdmpm_cli.io.ply import mesh_static_fields
 

@@ -248,10 +248,8 @@ class Prepared:
 def prepare_case(case: Case, path: Path = Path("stability.yaml")) -> Prepared:
     """Validate and discretise the case's scene (impact speeds are set from the at-rest automatic step), apply
     the prestretch and predict its stability limits (engine.spectrum)."""
-    from pdmpm_cli.engine.model import State
-    from pdmpm_cli.engine.solver import Solver
     from pdmpm_cli.engine.spectrum import critical_steps
-    from pdmpm_cli.runner import prepare_scene
+    from pdmpm_cli.runner import prepare_scene, start_in_memory
     from pdmpm_cli.scene.schema import Scene
 
     scene_dict = merge(BASE, case.changes)
@@ -263,13 +261,11 @@ def prepare_case(case: Case, path: Path = Path("stability.yaml")) -> Prepared:
         prep = prepare_scene(Scene.model_validate(scene_dict), path)
     v0 = float(np.linalg.norm(prep.disc.velocity, axis=1).max()) if prep.disc.n_particles else 0.0
     plan = prep.plan
-    state = State.allocate(prep.model, prep.disc, plan.fields)
+    state, solver = start_in_memory(prep)  # the materials' initial state depends on the rest positions only
     stretch = np.asarray(case.prestretch)
     for s, e in prep.model.body_ranges:
         centre = state.particle_x[s:e].mean(axis=0)
         state.particle_x[s:e] = centre + (state.particle_x[s:e] - centre) * stretch
-    solver = Solver(prep.model, plan)
-    solver.start(state)
     critical = critical_steps(solver, state)
     dt_pred = critical.predicted(v0, False)
     return Prepared(prep, state, v0, critical, dt_pred, min(b.dt_bond for b in plan.bodies),

@@ -36,14 +36,11 @@ def validate(
 
 def print_limits(console: Console, prep):
     """The predicted stability limits (engine.spectrum) beside the step the Plan takes."""
-    from pdmpm_cli.engine.model import State
-    from pdmpm_cli.engine.solver import Solver
     from pdmpm_cli.engine.spectrum import critical_steps
+    from pdmpm_cli.runner import start_in_memory
 
     plan = prep.plan
-    state = State.allocate(prep.model, prep.disc, plan.fields)
-    solver = Solver(prep.model, plan)
-    solver.start(state)
+    state, solver = start_in_memory(prep)
     crit = critical_steps(solver, state)
     wave = plan.cell_size / plan.wave_speed
     table = Table(title="predicted stability limits (largest stable constant step)")

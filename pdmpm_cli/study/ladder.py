@@ -23,7 +23,7 @@ import numpy as np
 from pdmpm_cli.engine.model import State
 from pdmpm_cli.engine.solver import Solver
 from pdmpm_cli.io.atomic import atomic_write_text
-from pdmpm_cli.runner import Prepared, prepare
+from pdmpm_cli.runner import Prepared, prepare, start_in_memory
 from pdmpm_cli.scene.loader import load_scene
 from pdmpm_cli.scene.schema import Scene
 from pdmpm_cli.study.problems import Problem
@@ -193,7 +193,7 @@ def scene_study(path: Path, overrides=(), variant: str | None = None, levels: in
     base = scene.grid.cell_size
     cells = cell_ladder(finest or base, ratio, levels)
     preps = {c: prepare(path, [*overrides, *level_overrides(scene, c / base)], variant) for c in cells}
-    state, solver = _start(preps[cells[0]])
+    state, solver = start_in_memory(preps[cells[0]])
     _warm_up(solver, state)
 
     def execute(ladder, level, prep: Prepared):
@@ -215,17 +215,9 @@ def _warm_up(solver: Solver, state: State):
     solver.advance(state, state.time + 3 * solver.plan.dt_max)
 
 
-def _start(prep: Prepared) -> tuple[State, Solver]:
-    """A fresh State and a started Solver for a prepared scene."""
-    state = State.allocate(prep.model, prep.disc, prep.plan.fields)
-    solver = Solver(prep.model, prep.plan)
-    solver.start(state)
-    return state, solver
-
-
 def _run_scene(prep: Prepared) -> tuple[State, float]:
     """Step a prepared scene to its end in memory, frame by frame as the runner does; the stepping's wall time."""
-    state, solver = _start(prep)
+    state, solver = start_in_memory(prep)
     t0 = time.perf_counter()
     for f in range(1, prep.plan.frames + 1):
         solver.advance(state, f * prep.plan.frame_dt)

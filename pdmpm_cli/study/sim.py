@@ -4,9 +4,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pdmpm_cli.engine.model import State
-from pdmpm_cli.engine.solver import Solver
-from pdmpm_cli.runner import prepare_scene
+from pdmpm_cli.runner import prepare_scene, start_in_memory
 from pdmpm_cli.scene.schema import Scene
 
 
@@ -17,9 +15,7 @@ class Sim:
         self.scene = Scene.model_validate(scene_dict)
         self.prep = prepare_scene(self.scene, Path(path))
         self.model, self.plan = self.prep.model, self.prep.plan
-        self.state = State.allocate(self.model, self.prep.disc, self.plan.fields)
-        self.solver = Solver(self.model, self.plan)
-        self.solver.start(self.state)
+        self.state, self.solver = start_in_memory(self.prep)
 
     def advance(self, t_end, on_substep=None):
         """Advance to t_end frame by frame, as the runner does (the blow-up check runs at every frame)."""
