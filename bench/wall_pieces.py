@@ -11,22 +11,16 @@ import argparse
 
 import h5py
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
+from pdmpm_cli.engine.fracture import pieces
 from pdmpm_cli.runner import prepare
 
 
-def pieces(bond_start, bond_nbr, X, x, start, end, threshold) -> np.ndarray:
-    """Sizes of the connected pieces of particles start..end over bonds stretched below threshold, largest first."""
+def stretch_intact(bond_start, bond_nbr, X, x, threshold) -> np.ndarray:
+    """Bonds whose stretch from rest positions X to x is below threshold: the intact ones, as far as positions tell."""
     owner = np.repeat(np.arange(len(bond_start) - 1), np.diff(bond_start))
-    sel = (owner >= start) & (owner < end)
-    p, q = owner[sel], bond_nbr[sel]
-    rest = np.linalg.norm(X[q] - X[p], axis=1)
-    intact = (np.linalg.norm(x[q] - x[p], axis=1) - rest) / rest < threshold
-    n = end - start
-    graph = coo_matrix((np.ones(intact.sum()), (p[intact] - start, q[intact] - start)), shape=(n, n))
-    return np.sort(np.bincount(connected_components(graph, directed=False)[1]))[::-1]
+    rest = np.linalg.norm(X[bond_nbr] - X[owner], axis=1)
+    return (np.linalg.norm(x[bond_nbr] - x[owner], axis=1) - rest) / rest < threshold
 
 
 def main():
@@ -47,7 +41,8 @@ def main():
         print("| t [s] | pieces over 5 % | share they hold | dust (pieces under 5) | largest pieces |")
         print("|---|---|---|---|---|")
         for k, t in enumerate(f["frames/time"][:]):
-            sizes = pieces(model.bond_start, model.bond_nbr, X, f["frames/particle_x"][k], start, end, args.threshold)
+            intact = stretch_intact(model.bond_start, model.bond_nbr, X, f["frames/particle_x"][k], args.threshold)
+            sizes = np.sort(np.bincount(pieces(model.bond_start, model.bond_nbr, intact, start, end)))[::-1]
             n = sizes.sum()
             large = sizes[sizes > 0.05 * n]
             print(f"| {t:.3g} | {len(large)} | {100 * large.sum() / n:.1f} % | {100 * sizes[sizes < 5].sum() / n:.1f} % "

@@ -21,9 +21,8 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
+from pdmpm_cli.engine.fracture import pieces
 from pdmpm_cli.engine.model import State
 from pdmpm_cli.engine.solver import Solver
 from pdmpm_cli.runner import prepare
@@ -75,14 +74,7 @@ def rigid_residual(x: np.ndarray, x0: np.ndarray) -> float:
 def fragments(trace: Trace, body: int = 0) -> np.ndarray:
     """Sizes (particles) of the connected pieces of a body over its intact bonds, largest first."""
     st, sl = trace.state, trace.body(body)
-    owner = np.repeat(np.arange(len(st.bond_start) - 1), np.diff(st.bond_start))
-    sel = (owner >= sl.start) & (owner < sl.stop) & (st.bond_active == 1)
-    n = sl.stop - sl.start
-    graph = coo_matrix((np.ones(sel.sum()), (owner[sel] - sl.start, st.bond_nbr[sel] - sl.start)), shape=(n, n))
-    return np.sort(np.bincount(connected_components(graph, directed=False)[1]))[::-1]
-
-
-FOLD_DEGREE = 6
+    return np.sort(np.bincount(pieces(st.bond_start, st.bond_nbr, st.bond_active == 1, sl.start, sl.stop)))[::-1]
 
 
 def fold_amplitude(trace: Trace) -> dict[str, float]:

@@ -5,13 +5,11 @@ import types
 import numba
 import numpy as np
 import pytest
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from pdmpm_cli.engine.bonds import build_families
 from pdmpm_cli.engine.colliders import collider_table
 from pdmpm_cli.engine.fracture import (bond_criterion, crack_contact, crack_particle_update, damage, fracture_update,
-                                       inactive_fraction)
+                                       inactive_fraction, pieces)
 
 H = 0.01  # lattice spacing [m]
 DELTA = 2.0 * H  # horizon [m]
@@ -40,10 +38,8 @@ def reverse(bond_start, bond_nbr):
 
 
 def components(bond_start, bond_nbr, bond_active):
-    n = len(bond_start) - 1
-    on = bond_active == 1
-    graph = coo_matrix((np.ones(on.sum()), (owners(bond_start)[on], bond_nbr[on])), shape=(n, n))
-    return connected_components(graph, directed=False)
+    labels = pieces(bond_start, bond_nbr, bond_active == 1, 0, len(bond_start) - 1)
+    return labels.max() + 1, labels
 
 
 def stretch(x, rest_x, bond_start, bond_nbr):

@@ -2,9 +2,8 @@
 and momentum is conserved while bonds break."""
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
+from pdmpm_cli.engine.fracture import pieces
 from tests.conftest import merge
 
 BAR = {
@@ -31,14 +30,8 @@ BAR = {
 def fragments(sim, body=0):
     """Connected components of a body over its intact bonds: (labels per particle, sizes largest first)."""
     s, e = sim.model.body_ranges[body]
-    st = sim.state
-    owner = np.repeat(np.arange(len(st.bond_start) - 1), np.diff(st.bond_start))
-    sel = (owner >= s) & (owner < e) & (st.bond_active == 1)
-    n = e - s
-    graph = coo_matrix((np.ones(sel.sum()), (owner[sel] - s, st.bond_nbr[sel] - s)), shape=(n, n))
-    count, labels = connected_components(graph, directed=False)
-    sizes = np.sort(np.bincount(labels))[::-1]
-    return labels, sizes
+    labels = pieces(sim.state.bond_start, sim.state.bond_nbr, sim.state.bond_active == 1, s, e)
+    return labels, np.sort(np.bincount(labels))[::-1]
 
 
 def test_notched_bar_breaks_in_two_at_the_notch(sim_factory):

@@ -238,6 +238,16 @@ def fracture_update(threshold, delta, start, end, particle_x, rest_x, bond_start
                         particle_bmax, bond_active)
 
 
+def pieces(bond_start, bond_nbr, intact, start: int, end: int) -> np.ndarray:
+    """Piece label of each particle start..end-1: the connected components over the bonds `intact` marks (one
+    bool per bond; bonds leaving the range are ignored). How fragments are counted (tests, bench/wall_pieces.py)."""
+    owner = np.repeat(np.arange(len(bond_start) - 1), np.diff(bond_start))
+    sel = intact & (owner >= start) & (owner < end) & (bond_nbr >= start) & (bond_nbr < end)
+    n = end - start
+    graph = coo_matrix((np.ones(sel.sum()), (owner[sel] - start, bond_nbr[sel] - start)), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
 @njit(parallel=True, cache=True)
 def damage(bond_start, bond_active, particle_damage, particle_crack):
     """Damage = broken / initial bonds -> particle_damage; 1 if any bond is broken -> particle_crack."""
