@@ -287,7 +287,8 @@ def total_energy(solver, state, floor: float) -> float:
 
 def run_case(case: Case, dt_factor: float | None = None, ready: Prepared | None = None) -> dict:
     """Run one case with the automatic step, or (dt_factor) a forced step of dt_factor times the predicted limit
-    of the starting state (the crack particles' own limit included while one holds a bond), and classify it. Returns one row of the sweep table."""
+    of the starting state (the crack particles' own limit included while one holds a bond), and classify it.
+    Returns one row of the sweep table."""
     from pdmpm_cli.engine.solver import Solver, pin_speed
 
     row = {"case": case.name, "category": case.category, "parameter": case.parameter,
@@ -399,12 +400,13 @@ def threshold(case: Case, lo: float = LO, hi: float = HI, bisections: int = BISE
     crit = ready.critical
     return {"case": case.name, "category": case.category, "parameter": case.parameter, "dt_pred": ready.dt_pred,
             "dt_grid": crit.grid, "dt_particles": crit.particles,
-            "dt_tunnel": crit.tunnel_depth / ready.v0 if ready.v0 > 0 else math.inf, "dt_bond": ready.dt_bond, "dt_auto": ready.prep.plan.dt_max, "bound": ready.bound,
+            "dt_tunnel": crit.tunnel_depth / ready.v0 if ready.v0 > 0 else math.inf, "dt_bond": ready.dt_bond,
+            "dt_auto": plan.dt_max, "bound": ready.bound,
             "measured": measured, "unstable": hi if bracketed else math.inf if low_ok else lo, "bracketed": bracketed,
             "within_2x": bracketed and 0.5 <= measured <= 2.0, "runs": len(runs),
             "bond_units": measured * ready.dt_pred / ready.dt_bond,
             "wave_units": measured * ready.dt_pred / ready.dt_wave,
-            "margin": measured * ready.dt_pred / min(ready.prep.plan.dt_max, plan.dt_cfl * plan.wave_speed
+            "margin": measured * ready.dt_pred / min(plan.dt_max, plan.dt_cfl * plan.wave_speed
                                                      / (plan.wave_speed + ready.v0)),
-            "v0_cells": ready.v0 * measured * ready.dt_pred / ready.prep.plan.cell_size,
+            "v0_cells": ready.v0 * measured * ready.dt_pred / plan.cell_size,
             "failure": next((r["class"] for r in runs if r["class"] != "stable"), "")}

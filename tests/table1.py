@@ -24,8 +24,7 @@ import numpy as np
 
 from pdmpm_cli.engine.fracture import pieces
 from pdmpm_cli.engine.model import State
-from pdmpm_cli.engine.solver import Solver
-from pdmpm_cli.runner import prepare
+from pdmpm_cli.runner import prepare, start_in_memory
 
 ROOT = Path(__file__).resolve().parents[1]
 BASELINES = Path(__file__).resolve().parent / "baselines" / "table1.json"
@@ -199,9 +198,7 @@ def run_case(name: str, perturbed: bool = False) -> tuple[Trace, dict[str, float
     overrides = [*case.reduced, *([case.perturb] if perturbed else [])]
     prep = prepare(ROOT / "scenes" / case.scene, overrides, case.variant)
     model, plan = prep.model, prep.plan
-    state = State.allocate(model, prep.disc, plan.fields)
-    solver = Solver(model, plan)
-    solver.start(state)
+    state, solver = start_in_memory(prep)
     t0 = time.perf_counter()
     xs = [state.particle_x.copy()]
     for i in range(1, plan.frames + 1):

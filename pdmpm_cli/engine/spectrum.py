@@ -7,9 +7,9 @@ omega_max^2 the largest eigenvalue of A. Two systems step that way here:
   that move with them, u_p = sum_I N_Ip U_I, so A = M_I^-1 N K N^T with K = -df/dx the bond stiffness;
 - crack particles, which integrate their own bonds off the grid (section 6): A = M_p^-1 K.
 
-omega_max comes from Arnoldi (scipy eigs) on the mass-scaled operator M^-1/2 ... M^-1/2, K applied by finite differences of
-the engine's force phases about the current state, so it holds for any material, family and discretisation,
-pre-stretched or not. Since sum_I N_Ip = 1 and N_Ip >= 0, u^T M_p u <= U^T M_I U (Jensen): the grid limit is
+omega_max comes from Arnoldi (scipy eigs) on the mass-scaled operator M^-1/2 ... M^-1/2, K applied by finite
+differences of the engine's force phases about the current state, so it holds for any material, family and
+discretisation, pre-stretched or not. Since sum_I N_Ip = 1 and N_Ip >= 0, u^T M_p u <= U^T M_I U (Jensen): the grid limit is
 never below the particle limit, which the Silling & Askari bond bound (the automatic step's) bounds from below.
 
 A third limit is geometric: a particle that crosses a collider's solid in one step passes through it
