@@ -76,6 +76,9 @@ def fragments(trace: Trace, body: int = 0) -> np.ndarray:
     return np.sort(np.bincount(pieces(st.bond_start, st.bond_nbr, st.bond_active == 1, sl.start, sl.stop)))[::-1]
 
 
+FOLD_DEGREE = 6
+
+
 def fold_amplitude(trace: Trace) -> dict[str, float]:
     """Cloth: the folds are what a smooth fit of the hanging cloth misses; their RMS amplitude, and the mean sag.
     The fit is a polynomial of degree FOLD_DEGREE in the sheet's rest coordinates: the swag between the pegs is
