@@ -16,11 +16,8 @@ import time
 from pathlib import Path
 
 import numba
-import numpy as np
 
-from pdmpm_cli.engine.model import State
-from pdmpm_cli.engine.solver import Solver
-from pdmpm_cli.runner import prepare_scene
+from pdmpm_cli.runner import prepare_scene, start_in_memory
 from pdmpm_cli.scene.schema import Scene
 
 
@@ -44,8 +41,7 @@ def cube_scene(n_target: int) -> Scene:
 
 def bench(n_target: int, steps: int, clock=time.perf_counter) -> dict:
     prep = prepare_scene(cube_scene(n_target), "bench.yaml")
-    state = State.allocate(prep.model, prep.disc, prep.plan.fields)
-    solver = Solver(prep.model, prep.plan)
+    state, solver = start_in_memory(prep)
     solver.clock = clock
     dt = prep.plan.dt_max
     for _ in range(2):  # compile (or load the cache) and warm up

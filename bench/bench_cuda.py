@@ -15,19 +15,16 @@ import time
 import numba
 
 from bench_cube import cube_scene
-from pdmpm_cli.engine.model import State
 from pdmpm_cli.errors import InputError
-from pdmpm_cli.runner import make_solver, prepare_scene
+from pdmpm_cli.runner import prepare_scene, start_in_memory
 
 
 def bench(n_target: int, steps: int, profile: bool) -> dict:
     scene = cube_scene(n_target)
     scene = scene.model_copy(update={"simulation": scene.simulation.model_copy(update={"backend": "cuda"})})
     prep = prepare_scene(scene, "bench.yaml")
-    state = State.allocate(prep.model, prep.disc, prep.plan.fields)
-    solver = make_solver(prep.model, prep.plan)
+    state, solver = start_in_memory(prep)
     solver.profile = profile
-    solver.start(state)
     dt = prep.plan.dt_max
     for _ in range(2):  # compile (or load the cache) and warm up
         solver.substep(state, dt)
@@ -42,7 +39,7 @@ def bench(n_target: int, steps: int, profile: bool) -> dict:
         "particles": n, "bonds_per_particle": nb / n, "step_ms": 1e3 * wall / steps,
         "particle_steps_per_s": n * steps / wall, "bond_updates_per_s": nb * steps / wall,
         "phases": {k: 1e3 * v / steps for k, v in solver.phase_time.items()},
-        "memory_mib": prep.plan.memory_bytes / 2**20, "device": solver.device_name,
+        "memory_mib": prep.plan.memory_bytes / 2**20, "device": solver.backend.device_name,
     }
 
 

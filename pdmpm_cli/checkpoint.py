@@ -1,27 +1,26 @@
 """Checkpoints: the complete simulation state every `output.checkpoint_every` frames, so that
 `pdmpm run --resume OUTDIR` continues a killed run and produces the frames an uninterrupted run would.
 
-``OUTDIR/checkpoints/frame_NNNNN.h5`` (``format = "pdmpm-checkpoint"``, ``format_version = 1``)::
+``OUTDIR/checkpoints/frame_NNNNN.h5`` (``format = "pdmpm-checkpoint"``, ``format_version = 2``)::
 
-    /               attributes: format, format_version, frame, time, step, dt_prev, threads (Numba threads),
+    /               attributes: format, format_version, frame, threads (Numba threads),
                       pdmpm_version, scene_path, overrides (JSON list of --set items), variant ("" for none),
                       scene_json (the validated scene less what a resume may change, see _binding),
                       model_sha256 (hash of the discretisation),
-                      solver_<name> for each of SOLVER_SCALARS
-    /state/<name>   every non-empty State array but the grids (rebuilt from the particles every step),
-                    including the CSR families, which viscoelastic bodies rebuild
+                      state_<name> for each of the State's scalars (time, step, dt_prev, vmax, ...)
+    /state/<name>   every allocated State array that is not transient (declared in engine.fields and by the
+                    materials), including the CSR families, which viscoelastic bodies rebuild
 
 The output thread writes a checkpoint after the frame it belongs to (so it never names a frame that is not on
 disk), to a temporary file that is fsynced and renamed (io.atomic), and keeps the two newest: a kill while one is
 written leaves the previous one. Stepping draws no random numbers (the seeded sampling RNG runs once, in
-discretisation, and is checked through model_sha256), so these arrays, the solver's scalars and the time are all
-a resumed run needs to continue bitwise identically with the same thread count. A finished run removes its
+discretisation, and is checked through model_sha256), and everything that evolves lives in the State, so the State
+is all a resumed run needs to continue bitwise identically with the same thread count. A finished run removes its
 checkpoints.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import shutil
@@ -34,17 +33,15 @@ import numba
 import numpy as np
 
 from pdmpm_cli import __version__
-from pdmpm_cli.engine.model import State
+from pdmpm_cli.engine.state import SCALARS, State
 from pdmpm_cli.errors import InputError
 from pdmpm_cli.io.atomic import atomic_path, fsync_file
 from pdmpm_cli.io.vtk import frame_index
 
 FORMAT = "pdmpm-checkpoint"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 FOLDER = "checkpoints"
 KEEP = 2
-SOLVER_SCALARS = ("vmax", "crack_vmax", "energy_budget", "energy_prev", "yield_residual", "bonds_cut")
-TRANSIENT = ("grid", "grid_private", "particle_force_private")  # cleared and refilled every step
 
 
 @dataclass
@@ -89,16 +86,10 @@ def _binding(scene) -> dict:
     return data
 
 
-def _arrays(state: State) -> dict[str, np.ndarray]:
-    arrays = {f.name: getattr(state, f.name) for f in dataclasses.fields(State) if f.name not in TRANSIENT}
-    return {name: a for name, a in arrays.items() if isinstance(a, np.ndarray) and a.size}
-
-
-def snapshot(state: State, solver) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """Copies of the state arrays and scalars, taken between frames while the solver goes on."""
-    scalars = {"time": state.time, "step": state.step, "dt_prev": state.dt_prev}
-    scalars |= {f"solver_{name}": getattr(solver, name) for name in SOLVER_SCALARS}
-    return {name: array.copy() for name, array in _arrays(state).items()}, scalars
+def snapshot(state: State) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Copies of the State's lasting arrays and its scalars, taken between frames while the solver goes on."""
+    return ({name: array.copy() for name, array in state.lasting().items()},
+            {f"state_{name}": value for name, value in state.scalars.items()})
 
 
 def save(out: Path, frame: int, snap: tuple[dict, dict], head: dict[str, Any]) -> Path:
@@ -150,7 +141,7 @@ def latest(out: Path) -> Checkpoint:
             if attrs.get("format") != FORMAT or attrs.get("format_version") != FORMAT_VERSION:
                 raise InputError(f"{path}: not a pdmpm checkpoint of format version {FORMAT_VERSION}; {fallback}")
             arrays = {name: dataset[()] for name, dataset in f["state"].items()}
-            missing = [k for k in ("frame", "time", "step", "dt_prev", "scene_json") if k not in attrs]
+            missing = [k for k in ("frame", "scene_json", *(f"state_{name}" for name in SCALARS)) if k not in attrs]
     except (OSError, KeyError, ValueError) as error:
         raise InputError(f"{path}: cannot read the checkpoint ({error}); it is truncated or corrupt: "
                          f"{fallback}") from error
@@ -183,8 +174,8 @@ def _differences(old: Any, new: Any, key: str = "") -> list[str]:
 
 
 def restore(ckpt: Checkpoint, state: State, solver) -> None:
-    """Overwrite a freshly started state and solver with the checkpoint's."""
-    expected = _arrays(state)
+    """Overwrite a freshly started State with the checkpoint's, and bind the solver to it again."""
+    expected = state.lasting()
     wrong = sorted(name for name in expected.keys() | ckpt.arrays.keys()
                    if name not in expected or name not in ckpt.arrays
                    or ckpt.arrays[name].dtype != expected[name].dtype
@@ -194,7 +185,6 @@ def restore(ckpt: Checkpoint, state: State, solver) -> None:
                          f"{ckpt.attrs['pdmpm_version']}); start a new run with --overwrite")
     for name, array in ckpt.arrays.items():
         setattr(state, name, array)
-    state.time, state.step, state.dt_prev = float(ckpt.attrs["time"]), int(ckpt.attrs["step"]), \
-        float(ckpt.attrs["dt_prev"])
-    for name in SOLVER_SCALARS:
-        setattr(solver, name, type(getattr(solver, name))(ckpt.attrs[f"solver_{name}"]))
+    for name, default in SCALARS.items():
+        setattr(state, name, type(default)(ckpt.attrs[f"state_{name}"]))
+    solver.bind(state)

@@ -11,14 +11,17 @@ from typing import Protocol
 import numpy as np
 
 from pdmpm_cli import checkpoint
-from pdmpm_cli.engine.materials.plastic import particle_plastic_strain
-from pdmpm_cli.engine.discretize import Discretization, discretize
+from pdmpm_cli.assemble import build_model
+from pdmpm_cli.discretize import Discretization, discretize
 from pdmpm_cli.engine.embedding import mesh_positions
-from pdmpm_cli.engine.model import Model, State
-from pdmpm_cli.engine.solver import Solver
+from pdmpm_cli.engine.materials import MATERIALS
+from pdmpm_cli.engine.model import Model
+from pdmpm_cli.engine.plan import Plan
+from pdmpm_cli.engine.solver import Solver, initial_state
+from pdmpm_cli.engine.state import State
 from pdmpm_cli.errors import InputError
 from pdmpm_cli.io.lock import LOCK_NAME, OutputLock
-from pdmpm_cli.plan import Plan, make_plan
+from pdmpm_cli.plan import make_plan
 from pdmpm_cli.scene.loader import load_scene
 from pdmpm_cli.scene.schema import Scene
 
@@ -63,7 +66,7 @@ def prepare_resume(out: Path, scene=None, overrides=(), variant: str | None = No
 def prepare_scene(scene: Scene, path: Path, text: str = "") -> Prepared:
     """Discretise a validated scene (relative mesh paths resolve beside `path`) and make the Plan."""
     disc = discretize(scene, Path(path).parent)
-    model = Model.build(scene, disc)
+    model = build_model(scene, disc)
     return Prepared(Path(path), scene, text, disc, model, make_plan(scene, disc, model))
 
 
@@ -86,19 +89,10 @@ class Reporter(Protocol):
     def frame(self, index: int, state: State) -> None: ...
 
 
-def make_solver(model: Model, plan: Plan):
-    """The Plan's backend: the CPU Solver, or the CUDA one (numba.cuda is imported only then)."""
-    if plan.backend == "cuda":
-        from pdmpm_cli.engine.cuda import cuda_solver
-
-        return cuda_solver(model, plan)
-    return Solver(model, plan)
-
-
 def start_in_memory(prep: Prepared) -> tuple[State, Solver]:
-    """A fresh State and a started CPU Solver for a prepared scene stepped from code (studies, the stability
-    sweep, `validate --limits`) rather than by `simulate`."""
-    state = State.allocate(prep.model, prep.disc, prep.plan.fields)
+    """A fresh State and a started Solver on the Plan's backend, for a prepared scene stepped from code (studies,
+    the stability sweep, `validate --limits`) rather than by `simulate`."""
+    state = initial_state(prep.model, prep.plan, prep.disc.velocity, prep.disc.velocity_gradient)
     solver = Solver(prep.model, prep.plan)
     solver.start(state)
     return state, solver
@@ -120,18 +114,20 @@ def static_fields(model: Model, meshes=()) -> dict[str, np.ndarray]:
 
 
 def frame_fields(state: State, names, model: Model | None = None, meshes=()) -> dict[str, np.ndarray]:
-    """The per-frame fields the scene selected, by name (particle_x always; vertex_x when meshes ride along)."""
+    """The per-frame fields the scene selected, by name (particle_x always; vertex_x when meshes ride along). A
+    material's output field is computed by that material; fields a scene does not have (Fbar, damage, plastic
+    strain of an elastic scene) are left out."""
     out = {"particle_x": state.particle_x}
     if meshes:
         out["vertex_x"] = np.concatenate(mesh_positions(model, state, meshes))
+    computed = {name: fn for b in (model.bodies if model is not None else ())
+                for name, fn in MATERIALS[b.kind].outputs.items()}
     for name in names:
         if name == "particle_speed":
             out[name] = np.linalg.norm(state.particle_v, axis=1)
-        elif name == "particle_plastic_strain":
-            if len(state.bond_ep):
-                out[name] = np.zeros(len(state.particle_x))
-                particle_plastic_strain(state.bond_start, state.bond_ep, out[name])
-        elif len(getattr(state, name)):  # fields a scene does not have (Fbar, damage) are left out
+        elif name in computed:
+            out[name] = computed[name](model, state)
+        elif state.has(name):
             out[name] = getattr(state, name)
     return out
 
@@ -184,16 +180,13 @@ def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwr
     from pdmpm_cli.io.sink import FrameSink
 
     scene, plan, model = prep.scene, prep.plan, prep.model
-    if resume is not None and plan.backend == "cuda":
-        raise InputError(f"{out}: --resume runs on the CPU backend only for now (the CUDA solver does not reload a "
-                         f"restored state); resume with --set simulation.backend=cpu")
-    solver = make_solver(model, plan)  # before touching the output folder: a missing GPU loses no earlier run
+    solver = Solver(model, plan)  # before touching the output folder: a missing GPU loses no earlier run
     with OutputLock(out):
         if resume is None:
             prepare_output_dir(out, overwrite)
         for folder in (out, out / "vtk", out / "meshes", out / checkpoint.FOLDER):
             remove_temporaries(folder)
-        state = State.allocate(model, prep.disc, plan.fields)
+        state = initial_state(model, plan, prep.disc.velocity, prep.disc.velocity_gradient)
         solver.start(state)
         first = 0
         if resume is not None:
@@ -209,11 +202,11 @@ def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwr
             if resume is None:
                 sink.submit(0, 0.0, frame_fields(state, scene.output.fields, model, meshes))
             for f in range(first + 1, plan.frames + 1):
-                solver.advance(state, f * plan.frame_dt, on_substep)
+                solver.advance(state, f * plan.frame_dt, on_substep)  # ends with the host State current
                 sink.submit(f, state.time, frame_fields(state, scene.output.fields, model, meshes))
                 if every and f % every == 0 and f < plan.frames:
                     sink.call(f"checkpoint at frame {f}",
-                              functools.partial(checkpoint.save, out, f, checkpoint.snapshot(state, solver), head))
+                              functools.partial(checkpoint.save, out, f, checkpoint.snapshot(state), head))
                 if reporter:
                     reporter.frame(f, state)
         checkpoint.remove(out)

@@ -1,23 +1,26 @@
-"""CPU backend vs CUDA backend on tiny scenes, step for step. Needs numba.cuda: a GPU, or the simulator
-(NUMBA_ENABLE_CUDASIM=1, set before numba is imported; test_cuda.py runs this in a subprocess for that).
+"""CPU backend vs CUDA backend, step for step. Needs numba.cuda: a GPU, or the simulator (NUMBA_ENABLE_CUDASIM=1,
+set before numba is imported; test_cuda.py runs this in a subprocess for that).
 
-    NUMBA_ENABLE_CUDASIM=1 python -m tests.cuda_compare [scene ...]
+    NUMBA_ENABLE_CUDASIM=1 python -m tests.cuda_compare [--steps N] [name ...]
 
-Both solvers take the same time steps (the CPU's), so any difference is round-off: the GPU's P2G adds with atomics
-in another order (and a real GPU fuses multiply-adds). Prints one JSON line per scene: the largest differences of
-positions and velocities relative to the body size and the largest speed, and what the scene exercised.
+The cases are every bundled scene (scenes/*.yaml) at a tiny resolution, and three small synthetic scenes that push
+walls, colliders, pins, wind and plasticity. Both solvers take the same time steps (the CPU's), so any difference is
+round-off: the GPU's P2G adds with atomics in another order (and a real GPU fuses multiply-adds). Prints one JSON
+line per case: the largest differences of positions, velocities and APIC matrices relative to the body size and the
+largest speed, of every other State array relative to its largest value, and what the case exercised.
 """
 
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 
-from pdmpm_cli.engine.model import State
-from pdmpm_cli.engine.solver import Solver
-from pdmpm_cli.runner import make_solver, prepare_scene
+from pdmpm_cli.engine.solver import Solver, initial_state
+from pdmpm_cli.runner import Prepared, prepare, prepare_scene
 from pdmpm_cli.scene.schema import Scene
 
+ROOT = Path(__file__).resolve().parents[1]
 BLOCK = {"mode": "cloud", "sampling": "lattice", "spacing": 0.05,
          "shape": {"type": "box", "center": [0.5, 0.27, 0.5], "size": [0.2, 0.2, 0.2]}}
 ELASTIC = {"model": "elastic", "density": 1000.0, "lam": 2e5, "mu": 1e5}
@@ -29,7 +32,7 @@ def scene(bodies, colliders=(), gravity=(0.0, -9.81, 0.0), wind=None) -> dict:
             "bodies": bodies, "colliders": list(colliders)}
 
 
-SCENES = {
+SYNTHETIC = {
     # 64 particles thrown down at the floor wall (its nodes are within 3 cells of y = 0) with friction
     "elastic_floor": scene([{"name": "block", "geometry": BLOCK, "material": ELASTIC, "velocity": [0.5, -8.0, 0.0],
                              "angular_velocity": [0.0, 0.0, 2.0]}]),
@@ -53,23 +56,60 @@ SCENES = {
                                       {"type": "plane", "point": [0, 0.42, 0], "normal": [0, 1, 0],
                                        "boundary": "sticky"}],
                            wind={"velocity": [2.0, 0.0, 1.0], "drag": 5.0}),
+    # a viscoelastic slab splatting on the floor: its bonds break and its families are rebuilt within the steps
+    "viscous_splat": scene([{"name": "dough", "geometry": {**BLOCK, "shape": {"type": "box", "center": [0.5, 0.2, 0.5],
+                                                                               "size": [0.3, 0.1, 0.2]}},
+                             "material": {"model": "viscoelastic", "density": 1000.0, "lam": 2e5, "mu": 1e5,
+                                          "relaxation_time": 0.002, "relaxing_fraction": 0.8, "break_stretch": 0.005,
+                                          "rebuild_distance": 0.05},
+                             "velocity": [0.0, -20.0, 0.0]}]),
 }
+
+# Every bundled scene at a tiny resolution: its materials, geometry modes, pins, colliders and fracture as shipped.
+SHELL = ("grid.cell_size=0.05", "bodies.0.geometry.spacing=0.05", "bodies.0.geometry.layers=1",
+         "bodies.1.geometry.spacing=0.05")
+BUNDLED = {
+    "elastic_drop": ("bodies.0.geometry.spacing=0.075",),
+    "cloth": ("grid.cell_size=0.02", "bodies.0.geometry.spacing=0.025"),
+    "cloth_pegs": ("bodies.0.geometry.spacing=0.05",),
+    "board_elastic": SHELL,
+    "board_plastic": SHELL,
+    "bunnies_elastic": ("grid.cell_size=0.03", "bodies.0.geometry.spacing=0.03", "bodies.1.geometry.spacing=0.03"),
+    "bunnies_plastic": ("grid.cell_size=0.03", "bodies.0.geometry.spacing=0.03", "bodies.1.geometry.spacing=0.03"),
+    # thrown at 4x its speed so that bonds break within the few steps compared
+    "wall_break": ("grid.cell_size=0.04", "bodies.0.geometry.spacing=0.04", "bodies.1.geometry.spacing=0.04",
+                   "bodies.1.velocity=[24.0,0.0,0.0]", "bodies.0.fracture.threshold=0.002"),
+    "beams": ("grid.cell_size=0.075", *(f"bodies.{i}.geometry.spacing=0.075" for i in range(3)),
+              *(f"bodies.{i}.geometry.layers=1" for i in range(3))),
+    "honey": ("grid.cell_size=0.1", "bodies.0.geometry.spacing=0.08"),
+    "cream_pie": ("grid.cell_size=0.06", "bodies.0.geometry.spacing=0.06"),
+}
+CASES = [*SYNTHETIC, *BUNDLED]
+
+
+def prepared(name: str, backend: str) -> Prepared:
+    """A case by name, or a scene file given by its path."""
+    if name.endswith(".yaml"):
+        return prepare(name, [f"simulation.backend={backend}"])
+    if name in SYNTHETIC:
+        base = SYNTHETIC[name]
+        return prepare_scene(Scene.model_validate({**base, "simulation": {**base["simulation"], "backend": backend}}),
+                             Path(f"{backend}.yaml"))
+    return prepare(ROOT / "scenes" / f"{name}.yaml", [*BUNDLED[name], f"simulation.backend={backend}"])
 
 
 def compare(name: str, steps: int) -> dict:
     """Run `steps` CPU steps and the same steps on the CUDA backend; the largest relative differences."""
-    base = SCENES[name]
-    prep_cpu = prepare_scene(Scene.model_validate(base), "cpu.yaml")
-    prep_gpu = prepare_scene(Scene.model_validate({**base, "simulation": {**base["simulation"], "backend": "cuda"}}),
-                             "gpu.yaml")
+    preps = [prepared(name, b) for b in ("cpu", "cuda")]
     states, solvers = [], []
-    for prep in (prep_cpu, prep_gpu):
-        states.append(State.allocate(prep.model, prep.disc, prep.plan.fields))
-        solvers.append(make_solver(prep.model, prep.plan))
+    for prep in preps:
+        states.append(initial_state(prep.model, prep.plan, prep.disc.velocity, prep.disc.velocity_gradient))
+        solvers.append(Solver(prep.model, prep.plan))
         solvers[-1].start(states[-1])
     cpu, gpu = solvers
-    assert type(cpu) is Solver and type(gpu) is not Solver
-    mass = prep_cpu.model.particle_mass
+    assert cpu.backend.name == "cpu" and gpu.backend.name == "cuda"
+    model = preps[0].model
+    mass = model.particle_mass
     p0 = mass @ states[0].particle_v
     for _ in range(steps):
         dt = cpu.step_size()
@@ -80,32 +120,51 @@ def compare(name: str, steps: int) -> dict:
     a, b = states
     size = np.ptp(a.particle_x, axis=0).max()
     speed = np.abs(a.particle_v).max()
-    out = {"scene": name, "particles": len(a.particle_x), "bonds": int(a.bond_start[-1]), "steps": steps,
-           "phases": list(prep_gpu.plan.phases), "x_rel": float(np.abs(a.particle_x - b.particle_x).max() / size),
+    others = {}
+    for key, array in a.lasting().items():
+        if key in ("particle_x", "particle_v", "particle_C") or array.dtype.kind not in "fiu":
+            continue
+        other = b.arrays[key]
+        if other.shape != array.shape:
+            others[key] = float("inf")
+            continue
+        scale = float(np.abs(array).max()) or 1.0
+        others[key] = float(np.abs(array.astype(float) - other.astype(float)).max() / scale)
+    out = {"case": name, "particles": len(a.particle_x), "bonds": int(a.bond_start[-1]), "steps": steps,
+           "phases": list(preps[1].plan.phases), "x_rel": float(np.abs(a.particle_x - b.particle_x).max() / size),
            "v_rel": float(np.abs(a.particle_v - b.particle_v).max() / speed),
-           "c_rel": float(np.abs(a.particle_C - b.particle_C).max() * prep_cpu.model.dx / speed),
-           "displacement": float(np.abs(a.particle_x - prep_cpu.model.rest_x).max() / size),
+           "c_rel": float(np.abs(a.particle_C - b.particle_C).max() * model.dx / speed),
+           "arrays_rel": others,
+           "displacement": float(np.abs(a.particle_x - model.rest_x).max() / size),
            # what walls, colliders and pins did: momentum change beyond gravity's, relative to M |v|max
            "external_impulse": float(np.linalg.norm(mass @ a.particle_v - p0 - mass.sum() * a.time
-                                                    * prep_cpu.model.gravity) / (mass.sum() * speed)),
-           "vmax": [cpu.vmax, gpu.vmax], "energy": [cpu.energy_prev, gpu.energy_prev]}
-    if len(a.bond_ep):
+                                                    * model.gravity) / (mass.sum() * speed)),
+           "vmax": [a.vmax, b.vmax], "energy": [a.energy_prev, b.energy_prev],
+           "scalars": [{k: v for k, v in s.scalars.items() if k != "energy_budget"} for s in states]}
+    if a.has("bond_ep"):
         out["yielded"] = float(np.mean(a.bond_ep != 0))
-        out["ep_rel"] = float(np.abs(a.bond_ep - b.bond_ep).max() / np.abs(a.bond_ep).max())
-        out["yield_residual"] = [cpu.yield_residual, gpu.yield_residual]
-    pins = prep_cpu.model.pin_mask.astype(bool)
+        out["yield_residual"] = [a.yield_residual, b.yield_residual]
+    if a.has("bond_active"):
+        out["broken"] = int((a.bond_active == 0).sum())
+        out["crack_particles"] = int(a.particle_crack.sum())
+    if a.has("bond_len0"):
+        out["rebuilt"] = bool(np.any(a.particle_x_rebuild != model.rest_x))
+        out["broken"] = int((a.bond_len0 < 0).sum())
+    pins = model.pin_mask.astype(bool)
     if pins.any():
         out["pinned"] = int(pins.sum())
-        stopped = prep_cpu.model.pin_stop < a.time
+        stopped = model.pin_stop < a.time
         out["pin_stopped"] = int((pins & stopped).sum())
-        held = np.where(stopped[:, None], 0.0, prep_cpu.model.pin_velocity)  # at rest once a pin has stopped
+        held = np.where(stopped[:, None], 0.0, model.pin_velocity)  # at rest once a pin has stopped
         out["pin_v_err"] = float(np.abs(b.particle_v[pins] - held[pins]).max())
     return out
 
 
 def main(argv):
     steps = 6
-    for name in argv or SCENES:
+    if argv[:1] == ["--steps"]:
+        steps, argv = int(argv[1]), argv[2:]
+    for name in argv or CASES:
         print(json.dumps(compare(name, steps)), flush=True)
 
 

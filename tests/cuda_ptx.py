@@ -1,41 +1,51 @@
-"""Compile every kernel the CudaSolver launches to PTX for an H100 (sm_90), with the argument types of real runs,
+"""Compile every kernel the CUDA backend launches to PTX for an H100 (sm_90), with the argument types of real runs,
 on a machine without a GPU. The simulator runs the kernels as Python and cannot tell what the CUDA target
 rejects (np.floor, the builtin max in numba 0.68); this needs only NVVM (the CUDA toolkit), not a driver.
 
     NUMBA_ENABLE_CUDASIM=0 python -m tests.cuda_ptx     (exit 3 when NVVM is missing)
 
-The solver runs one step of each tests.cuda_compare scene with host arrays standing in for device arrays and a
-`launch` that records kernels and argument types instead of launching; then each is compiled.
+The backend runs one step of each tests.cuda_compare synthetic case and of the tiny fracture and viscoelastic
+scenes, with host arrays standing in for device arrays and a `launch` that records kernels and argument types
+instead of launching; a few particles are made crack particles so that the crack kernels launch too. Then each
+recorded kernel is compiled.
 """
 
 import sys
 import types
 
-import numba
 import numpy as np
-from numba import cuda
-from numba.cuda import dispatcher
-from numba.cuda.cudadrv import nvvm
 
-from pdmpm_cli.engine.cuda import solver as cuda_solver
-from pdmpm_cli.engine.model import State
-from pdmpm_cli.runner import prepare_scene
-from pdmpm_cli.scene.schema import Scene
-from tests.cuda_compare import SCENES
+if not hasattr(np, "row_stack"):
+    np.row_stack = np.vstack  # numba-cuda 0.30 still calls np.row_stack, which numpy 2.5 removed
+
+import numba  # noqa: E402
+from numba import cuda  # noqa: E402
+from numba.cuda import dispatcher  # noqa: E402
+from numba.cuda.cudadrv import nvvm  # noqa: E402
+
+from pdmpm_cli.engine.backends import cuda as backend  # noqa: E402
+from pdmpm_cli.engine.solver import Solver, initial_state  # noqa: E402
+from tests.cuda_compare import SYNTHETIC, prepared  # noqa: E402
 
 CC = (9, 0)
+CASES = [*SYNTHETIC, "wall_break", "honey"]
 
 
 class HostArray(np.ndarray):
-    """A numpy array with the one device-array method the solver calls."""
+    """A numpy array with the device-array methods the backend calls."""
 
-    def copy_to_host(self, out):
+    def copy_to_host(self, out=None):
+        if out is None:
+            return np.array(self)
         out[...] = self
         return out
 
+    def copy_to_device(self, a):
+        self[...] = a
+
 
 def launched_kernels() -> dict:
-    """{(kernel name, argument types): kernel} over one step of every comparison scene."""
+    """{(kernel name, argument types): kernel} over one step of every case."""
     seen = {}
 
     def record(kernel, n, *args):
@@ -43,16 +53,17 @@ def launched_kernels() -> dict:
         seen.setdefault((kernel.py_func.__name__, sig), kernel)
 
     cuda.to_device = lambda a: np.array(a).view(HostArray)
-    cuda.device_array = lambda shape: np.zeros(shape).view(HostArray)
-    cuda_solver.launch = record
-    cuda_solver.device_name = lambda: "none"
+    backend.launch = record
+    backend.device_name = lambda: "none"
     # device functions are compiled for the current device's compute capability: name one instead
     dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability=CC)
-    for base in SCENES.values():
-        scene = Scene.model_validate({**base, "simulation": {**base["simulation"], "backend": "cuda"}})
-        prep = prepare_scene(scene, "ptx.yaml")
-        state = State.allocate(prep.model, prep.disc, prep.plan.fields)
-        solver = cuda_solver.CudaSolver(prep.model, prep.plan)
+    for name in CASES:
+        prep = prepared(name, "cuda")
+        state = initial_state(prep.model, prep.plan, prep.disc.velocity, prep.disc.velocity_gradient)
+        if state.has("particle_crack"):
+            state.particle_crack[:3] = 1
+            state.particle_damage[:3] = 1.0
+        solver = Solver(prep.model, prep.plan, backend=backend.CudaBackend())
         solver.start(state)
         solver.substep(state, prep.plan.dt_max)
     return seen

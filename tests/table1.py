@@ -23,7 +23,7 @@ from typing import Callable
 import numpy as np
 
 from pdmpm_cli.engine.fracture import pieces
-from pdmpm_cli.engine.model import State
+from pdmpm_cli.engine.state import State
 from pdmpm_cli.runner import prepare, start_in_memory
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from pdmpm_cli.engine.colliders import SEPARATE, SLIP, STICKY, collider_table, respond, signed_distance
+from pdmpm_cli.assemble import collider_table
+from pdmpm_cli.engine.colliders import SEPARATE, SLIP, STICKY, respond, signed_distance
 from pdmpm_cli.scene.schema import Scene
 
 

@@ -2,7 +2,14 @@
 
 The simulator must be switched on before numba.cuda is first imported, so everything that touches numba.cuda runs
 in a subprocess with NUMBA_ENABLE_CUDASIM=1; this process never imports it. The simulator runs the kernels as
-Python threads (about a second per step on these 32-64 particle scenes), so the scenes are tiny and short.
+Python threads, so the scenes are tiny and short.
+
+Tolerances. Both backends take the same steps and evaluate the same per-item formulae; they differ in the order of
+P2G's atomic adds and in the side of a bond pair its force is evaluated from (the CPU scatters each pair once, the
+GPU gathers both sides). The synthetic cases deform strongly, and agree to TOL relative. A body in free flight
+(most bundled scenes in their first steps) has bond forces that are round-off of large cancelling terms (1e-16 of
+lam / h per bond): the backends draw that noise differently, so velocities agree to FLIGHT_TOL of the largest speed
+and positions to TOL of the body.
 """
 
 import json
@@ -16,53 +23,56 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pdmpm_cli.errors import InputError
 from pdmpm_cli.io.hdf5 import read_run
 from pdmpm_cli.runner import prepare, prepare_scene, simulate
 from pdmpm_cli.scene.schema import Scene
 from tests.conftest import BASE, merge
+from tests.cuda_compare import BUNDLED, SYNTHETIC
 
 ROOT = Path(__file__).resolve().parents[1]
-# Same time steps on both backends: only the order of P2G's atomic adds differs (measured <= 2e-15 relative
-# on the simulator, e_p 5e-14; a real GPU also fuses multiply-adds, expect a few 1e-14 over these steps).
 TOL = 1e-12
+FLIGHT_TOL = 1e-6
+STEPS = 3
 
 
-def python(*args, sim: bool, timeout=300):
-    env = dict(os.environ, COLUMNS="200", NUMBA_ENABLE_CUDASIM="1" if sim else "0")
+def python(*args, sim: bool, timeout=900, env=None):
+    env = dict(os.environ, COLUMNS="200", NUMBA_ENABLE_CUDASIM="1" if sim else "0", **(env or {}))
     return subprocess.run([sys.executable, *args], capture_output=True, text=True, cwd=ROOT, env=env,
                           timeout=timeout)
 
 
 @pytest.fixture(scope="module")
 def compared():
-    """tests.cuda_compare on its three scenes, once for the module: {scene: measured differences}."""
-    r = python("-m", "tests.cuda_compare", sim=True)
-    assert r.returncode == 0, r.stderr
+    """tests.cuda_compare on every case, once for the module: {case: measured differences}."""
+    r = python("-m", "tests.cuda_compare", "--steps", str(STEPS), sim=True)
+    assert r.returncode == 0, r.stderr[-3000:]
     rows = [json.loads(line) for line in r.stdout.splitlines()]
     for row in rows:
-        print(f"\n{row['scene']}: {row['particles']} particles, {row['steps']} steps, |dx| {row['x_rel']:.1e}, "
-              f"|dv| {row['v_rel']:.1e}, |dC| {row['c_rel']:.1e} (relative), e_p {row.get('ep_rel', 0):.1e}")
-    return {row["scene"]: row for row in rows}
+        print(f"\n{row['case']}: {row['particles']} particles, {row['steps']} steps, |dx| {row['x_rel']:.1e}, "
+              f"|dv| {row['v_rel']:.1e}, |dC| {row['c_rel']:.1e} (relative), arrays "
+              f"{max(row['arrays_rel'].values(), default=0):.1e}")
+    return {row["case"]: row for row in rows}
 
 
-def assert_same(row):
-    assert row["x_rel"] < TOL and row["v_rel"] < TOL and row["c_rel"] < TOL
-    assert row["vmax"][1] == pytest.approx(row["vmax"][0], rel=TOL)  # hence the same time steps in a real run
-    assert row["energy"][1] == pytest.approx(row["energy"][0], rel=TOL)  # host diagnostics see the device state
+def assert_same(row, v_tol=TOL):
+    assert row["x_rel"] < TOL and row["v_rel"] < v_tol and row["c_rel"] < v_tol
+    assert row["vmax"][1] == pytest.approx(row["vmax"][0], rel=v_tol)  # hence the same time steps in a real run
+    assert row["energy"][1] == pytest.approx(row["energy"][0], rel=v_tol)  # host diagnostics see the device state
+    a, b = row["scalars"]
+    assert a["step"] == b["step"] and a["bonds_cut"] == b["bonds_cut"]
 
 
 def test_elastic_block_hitting_the_floor(compared):
     row = compared["elastic_floor"]
     assert row["phases"] == ["fbar", "bonds:elastic", "p2g", "grid_update", "g2p"]
-    assert row["external_impulse"] > 5e-3 and row["displacement"] > 0.1  # the floor wall pushed back, it moved
+    assert row["external_impulse"] > 5e-3 and row["displacement"] > 0.05  # the floor wall pushed back, it moved
     assert_same(row)
 
 
 def test_plastic_slab_yields_alike(compared):
     row = compared["plastic_slab"]
     assert "return_map:plastic" in row["phases"] and row["yielded"] > 0.2
-    assert row["ep_rel"] < 1e-9  # e_p is a difference of nearly equal strains: round-off grows by 1/(yield strain)
+    assert row["arrays_rel"]["bond_ep"] < 1e-9  # e_p is a difference of nearly equal strains: round-off / yield strain
     assert row["yield_residual"][1] == pytest.approx(row["yield_residual"][0], abs=1e-12)
     assert row["yield_residual"][1] < 1e-9  # exactly back on the yield surface
     assert_same(row)
@@ -76,6 +86,24 @@ def test_collider_and_pins(compared):
     assert_same(row)
 
 
+def test_viscoelastic_splat_rebuilds_alike(compared):
+    row = compared["viscous_splat"]
+    assert "families:viscoelastic" in row["phases"] and row["rebuilt"]
+    assert max(row["arrays_rel"].values()) < 1e-12  # bond forces, formation lengths, families
+    assert_same(row)
+
+
+@pytest.mark.parametrize("case", BUNDLED)
+def test_bundled_scene_matches_cpu(compared, case):
+    """Every bundled scene, fracture (wall_break, thrown hard so that bonds break within the steps) and
+    viscoelastic (honey, cream_pie) included."""
+    row = compared[case]
+    assert_same(row, v_tol=FLIGHT_TOL)
+    if case == "wall_break":
+        assert "crack" in row["phases"] and row["broken"] > 0 and row["crack_particles"] > 0
+        assert row["arrays_rel"]["bond_active"] == 0 and row["arrays_rel"]["particle_damage"] < TOL
+
+
 def test_kernels_compile_for_an_h100():
     """What the simulator cannot check: each kernel, with the argument types of real runs, compiles to PTX for
     sm_90 (needs the CUDA toolkit's NVVM, no GPU; skipped without it)."""
@@ -84,8 +112,10 @@ def test_kernels_compile_for_an_h100():
         pytest.skip(r.stderr.strip())
     assert r.returncode == 0, r.stderr[-3000:]
     compiled = {line.split(":")[0] for line in r.stdout.splitlines()}
-    assert compiled == {"averaged_deformation", "elastic_forces", "bond_dilatation", "plastic_return_map",
-                        "zero_box", "p2g", "grid_update", "reset_stats", "g2p"}
+    assert compiled == {"averaged_deformation_at", "elastic_force_at", "dilatation_at", "return_map_at",
+                        "incremental_dilatation_at", "viscoelastic_force_at", "copy_row_at", "zero_box", "p2g_kernel",
+                        "grid_update_kernel", "reset_stats", "g2p_kernel", "crack_contact_kernel",
+                        "crack_update_kernel", "criterion_at", "zero_cells", "count_cells", "cell_fraction"}
 
 
 TINY = textwrap.dedent("""\
@@ -142,27 +172,12 @@ def test_cuda_without_gpu_is_an_input_error_and_cpu_never_imports_numba_cuda(tmp
     assert (tmp_path / "gpu" / "keep.txt").exists()
 
 
-@pytest.mark.parametrize("body, named", [
-    ({"fracture": {"threshold": 0.05}}, "bodies.0.fracture"),
-    ({"material": {"model": "viscoelastic", "density": 1000.0, "lam": 1e4, "mu": 1e3, "relaxation_time": 0.1,
-                   "relaxing_fraction": 0.5, "break_stretch": 0.05}}, "bodies.0.material.model = viscoelastic"),
-])
-def test_plan_refuses_what_the_gpu_does_not_run(tmp_path, body, named):
-    small = merge(BASE, {"bodies": [{**BASE["bodies"][0], "geometry": {**BASE["bodies"][0]["geometry"],
-                                                                       "spacing": 0.05}, **body}]})
-    assert prepare_scene(Scene.model_validate(small), tmp_path / "s.yaml").plan.backend == "cpu"
-    with pytest.raises(InputError) as e:
-        prepare_scene(Scene.model_validate(merge(small, {"simulation": {"backend": "cuda"}})), tmp_path / "s.yaml")
-    assert str(e.value) == (f"simulation.backend = cuda does not run {named} (the GPU step has no fracture and no "
-                            f"viscoelastic bodies yet); use the cpu backend for this scene (simulation.backend: cpu, "
-                            f"or pdmpm run --backend cpu)")
-
-
-def test_cuda_plan_has_no_per_thread_grids(tmp_path):
+def test_cuda_plan_has_no_per_thread_arrays(tmp_path):
     scene = merge(BASE, {"simulation": {"backend": "cuda"}, "bodies": [
         {**BASE["bodies"][0], "geometry": {**BASE["bodies"][0]["geometry"], "spacing": 0.05}}]})
     plan = prepare_scene(Scene.model_validate(scene), tmp_path / "s.yaml").plan
-    assert plan.fields["grid_private"][0][0] == 0 and plan.phases[-3:] == ("p2g", "grid_update", "g2p")
+    assert plan.fields["grid_private"][0][0] == 0 and plan.fields["particle_force_private"][0][0] == 0
+    assert plan.phases[-3:] == ("p2g", "grid_update", "g2p")
 
 
 @pytest.mark.slow

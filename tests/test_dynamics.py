@@ -1,4 +1,4 @@
-"""MPM dynamics with analytic answers (../shared/VERIFICATION.md): free fall, conservation, vibrating bar."""
+"""MPM dynamics with analytic answers: free fall, conservation, vibrating bar."""
 
 import dataclasses
 

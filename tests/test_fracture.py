@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pdmpm_cli.engine.bonds import build_families
-from pdmpm_cli.engine.colliders import collider_table
+from pdmpm_cli.assemble import collider_table
 from pdmpm_cli.engine.fracture import (bond_criterion, crack_contact, crack_particle_update, damage, fracture_update,
                                        inactive_fraction, pieces)
 
@@ -252,8 +252,9 @@ def test_crack_particle_update_symplectic_euler_colliders_and_box():
     x, v = x0.copy(), v0.copy()
     c = np.ones((5, 3, 3))
     grid = np.zeros((12, 12, 12, 4))  # no material on the grid: no contact, only the own-force update
-    crack_contact(grid, dt, gravity, np.zeros(3), 10.0, crack, np.ones(5), mass, np.full(5, 1e-3), force, x, v)
-    vmax, bad = crack_particle_update(dt, t_new, colliders, lo, hi, crack, x, v, c)
+    index = np.flatnonzero(crack)
+    crack_contact(grid, dt, gravity, np.zeros(3), 10.0, index, np.ones(5), mass, np.full(5, 1e-3), force, x, v)
+    vmax, bad = crack_particle_update(dt, t_new, colliders, lo, hi, index, x, v, c)
 
     v_free = v0[0] + dt * (force[0] / mass[0] + gravity)
     np.testing.assert_allclose(v[0], v_free, rtol=0, atol=1e-15)
@@ -286,8 +287,8 @@ def test_crack_contact_with_grid_material_is_inelastic_and_conserves_momentum():
     before = grid.copy()
     momentum = lambda g, vv: (g[..., :1] * g[..., 1:]).sum(axis=(0, 1, 2)) + mass @ vv  # noqa: E731
     energy = lambda g, vv: 0.5 * (g[..., 0] * (g[..., 1:] ** 2).sum(-1)).sum() + 0.5 * mass @ (vv**2).sum(1)  # noqa: E731
-    crack_contact(grid, 0.0, np.zeros(3), np.zeros(3), 1.0 / dx, crack, np.ones(3), mass, mass / rho, np.zeros((3, 3)),
-                  x, v)
+    crack_contact(grid, 0.0, np.zeros(3), np.zeros(3), 1.0 / dx, np.flatnonzero(crack), np.ones(3), mass, mass / rho,
+                  np.zeros((3, 3)), x, v)
     np.testing.assert_allclose(momentum(grid, v), momentum(before, v0), rtol=1e-13)
     assert energy(grid, v) < energy(before, v0)
     # the particle and the lump of slab around it move on together along the normal (x); sliding is kept

@@ -1,4 +1,4 @@
-"""`pdmpm stability` (issue 6): the case list, the classification (it must catch a blow-up), the automatic step
+"""`pdmpm stability`: the case list, the classification (it must catch a blow-up), the automatic step
 on the quick set, the forced-step threshold against the predicted bound, and the command's exit codes."""
 
 import csv

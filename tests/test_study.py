@@ -1,4 +1,4 @@
-"""`pdmpm study` (issue 6): convergence orders on the verification problems, scene-file ladders, outputs."""
+"""`pdmpm study`: convergence orders on the verification problems, scene-file ladders, outputs."""
 
 import csv
 import math
@@ -44,7 +44,7 @@ def test_cantilever_space_order_reduced():
     """Cloud cantilever L/H = 5, 4, 5 and 6 particles through the thickness, explicit run after 1.5 periods: the tip
     deflection's error against Timoshenko is 0.098, 0.111, 0.092 (measured). With the jittered cloud it fell 0.24,
     0.117, 0.078 (order 2.8), but that was the jittered cloud's softness shrinking with h; with the relaxed
-    sampling (issue 4) the error left is the explicit run's creep towards rest (the rest state sags 1.012 of
+    sampling the error left is the explicit run's creep towards rest (the rest state sags 1.012 of
     Euler-Bernoulli, 0.973 of Timoshenko, at 6 particles), about the same at every level: no order to fit."""
     study = problem_study(CANTILEVER, levels=3, time_levels=0, finest=0.1 / 3, ratio=1.25)
     show(study)

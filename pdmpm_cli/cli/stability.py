@@ -1,4 +1,4 @@
-"""`pdmpm stability`: the stability sweep (issue 6), its classification table and the measured time-step
+"""`pdmpm stability`: the stability sweep, its classification table and the measured time-step
 thresholds against the engine's predicted bound."""
 
 from pathlib import Path

@@ -49,8 +49,8 @@ def print_limits(console: Console, prep):
     table.add_column(escape("[dx / c]"), justify="right")
     table.add_column(escape("/ step used"), justify="right")
     rows = {"grid, 2 / omega_max": crit.grid, "crack particles, 2 / omega_max": crit.particles}
-    if solver.vmax > 0:
-        rows[f"tunnelling, {crit.tunnel_depth:.3g} m / initial speed"] = crit.tunnel_depth / solver.vmax
+    if state.vmax > 0:
+        rows[f"tunnelling, {crit.tunnel_depth:.3g} m / initial speed"] = crit.tunnel_depth / state.vmax
     for label, value in rows.items():
         table.add_row(escape(label), f"{value:.4g}", f"{value / wave:.3g}", f"{value / plan.dt_max:.3g}")
     console.print(table)

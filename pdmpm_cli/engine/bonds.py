@@ -1,4 +1,4 @@
-"""Peridynamic families and the averaged deformation (paper eq. 4, METHOD.md sections 1-2).
+"""Peridynamic families and the averaged deformation (paper eq. 4; docs/method.md).
 
 Families are stored in CSR form: the bonds of particle p are bond_nbr[bond_start[p]:bond_start[p+1]].
 Bonds join particles of the same body within the horizon delta (strictly: w(delta) = 0 adds nothing).
@@ -11,11 +11,18 @@ import numpy as np
 from numba import njit, prange
 from scipy.spatial import cKDTree
 
+from pdmpm_cli.engine.kernel import Kernel
 from pdmpm_cli.engine.parallel import VECTOR_MATH
 
 # Regularisation of rank-deficient shape tensors (cloth, chains): K + EPS tr(K) I, exact within the span.
 RANK_TOL = 1e-6
 EPS = 1e-9
+
+
+@njit(cache=True, inline="always")
+def influence(r, delta):
+    """w(|xi|) = 1 - |xi| / delta, the paper's linear influence function (its one definition)."""
+    return 1.0 - r / delta
 
 
 @njit(cache=True, inline="always")
@@ -90,7 +97,7 @@ def reference_family_terms(rest_x, particle_volume, bond_start, bond_nbr, partic
         for b in range(bond_start[p], bond_start[p + 1]):
             q = bond_nbr[b]
             x0, x1, x2, r = bond_vector(rest_x, p, q)
-            wv = (1.0 - r / delta) * particle_volume[q]
+            wv = influence(r, delta) * particle_volume[q]
             om += wv
             xi = (x0, x1, x2)
             for a in range(3):
@@ -119,18 +126,27 @@ def bond_reference_terms(rest_x, particle_volume, bond_start, bond_nbr, particle
         for b in range(bond_start[p], bond_start[p + 1]):
             q = bond_nbr[b]
             r = bond_vector(rest_x, p, q)[3]
-            bond_wv[b] = (1.0 - r / delta) * particle_volume[q]
+            bond_wv[b] = influence(r, delta) * particle_volume[q]
             bond_inv_len[b] = 1.0 / r
+
+
+@njit(cache=True, inline="always")
+def times_kinv(p, a00, a01, a02, a10, a11, a12, a20, a21, a22, particle_Kinv, particle_Fbar):
+    """Fbar_p = A K_p^-1 with A = sum_q w V_q eta (x) xi (eq. 4's second factor) -> particle_Fbar[p]."""
+    k = particle_Kinv[p]
+    for c in range(3):
+        particle_Fbar[p, 0, c] = a00 * k[0, c] + a01 * k[1, c] + a02 * k[2, c]
+        particle_Fbar[p, 1, c] = a10 * k[0, c] + a11 * k[1, c] + a12 * k[2, c]
+        particle_Fbar[p, 2, c] = a20 * k[0, c] + a21 * k[1, c] + a22 * k[2, c]
 
 
 @njit(parallel=True, cache=True, fastmath=VECTOR_MATH, error_model="numpy")
 def averaged_deformation(start, end, particle_x, rest_x, bond_start, bond_nbr, bond_wv, particle_Kinv,
                          particle_Fbar, chunks):
-    """Fbar_p = (sum_q w V_q eta (x) xi) K_p^-1 (eq. 4 with METHOD.md's correction: eta, not w, in front) for
-    particles start..end-1, over the whole reference family: only intact particles use Fbar (a particle with a
-    broken bond uses eta instead, elastic.py), so the sum always matches the K^-1 it is multiplied by.
-
-    Two loops per particle: a gather of its neighbours' bond vectors (w V_q is stored per bond, bond_wv) into
+    """Fbar_p = (sum_q w V_q eta (x) xi) K_p^-1 (eq. 4 with the correction of docs/method.md: eta, not w, in front)
+    for particles start..end-1, over the whole reference family: only intact particles use Fbar (a particle with a
+    broken bond uses eta instead, elastic.py), so the sum always matches the K^-1 it is multiplied by. The CPU's
+    form: two loops per particle, a gather of its neighbours' bond vectors (w V_q is stored per bond, bond_wv) into
     contiguous scratch rows, then a loop without gathers that the compiler turns into SIMD."""
     n = end - start
     for t in prange(chunks):
@@ -157,11 +173,33 @@ def averaged_deformation(start, end, particle_x, rest_x, bond_start, bond_nbr, b
                 a20 += e2 * x0
                 a21 += e2 * x1
                 a22 += e2 * x2
-            k = particle_Kinv[p]
-            for c in range(3):
-                particle_Fbar[p, 0, c] = a00 * k[0, c] + a01 * k[1, c] + a02 * k[2, c]
-                particle_Fbar[p, 1, c] = a10 * k[0, c] + a11 * k[1, c] + a12 * k[2, c]
-                particle_Fbar[p, 2, c] = a20 * k[0, c] + a21 * k[1, c] + a22 * k[2, c]
+            times_kinv(p, a00, a01, a02, a10, a11, a12, a20, a21, a22, particle_Kinv, particle_Fbar)
+
+
+@njit(cache=True)
+def averaged_deformation_at(p, particle_x, rest_x, bond_start, bond_nbr, bond_wv, particle_Kinv, particle_Fbar,
+                            chunks):
+    """Eq. 4 for particle p, gathering directly: the GPU's form of `averaged_deformation` (same sums, same order)."""
+    r0, r1, r2 = rest_x[p, 0], rest_x[p, 1], rest_x[p, 2]
+    p0, p1, p2 = particle_x[p, 0], particle_x[p, 1], particle_x[p, 2]
+    a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
+    for b in range(bond_start[p], bond_start[p + 1]):
+        q, w = bond_nbr[b], bond_wv[b]
+        x0, x1, x2 = w * (rest_x[q, 0] - r0), w * (rest_x[q, 1] - r1), w * (rest_x[q, 2] - r2)
+        e0, e1, e2 = particle_x[q, 0] - p0, particle_x[q, 1] - p1, particle_x[q, 2] - p2
+        a00 += e0 * x0
+        a01 += e0 * x1
+        a02 += e0 * x2
+        a10 += e1 * x0
+        a11 += e1 * x1
+        a12 += e1 * x2
+        a20 += e2 * x0
+        a21 += e2 * x1
+        a22 += e2 * x2
+    times_kinv(p, a00, a01, a02, a10, a11, a12, a20, a21, a22, particle_Kinv, particle_Fbar)
+
+
+AVERAGED_DEFORMATION = Kernel(averaged_deformation_at, averaged_deformation)
 
 
 def calibration_coefficients(particle_omega, particle_body, body_horizon):
@@ -189,6 +227,6 @@ def bond_time_steps(rest_x, particle_volume, bond_start, bond_nbr, particle_body
         for b in range(bond_start[p], bond_start[p + 1]):
             q = bond_nbr[b]
             r = bond_vector(rest_x, p, q)[3]
-            k += (particle_coef[p] + particle_coef[q]) * (1.0 - r / delta) * particle_volume[q] / (r * r)
+            k += (particle_coef[p] + particle_coef[q]) * influence(r, delta) * particle_volume[q] / (r * r)
         k *= body_modulus[body]
         out[p] = math.sqrt(2.0 * body_density[body] / k) if k > 0.0 else np.inf

@@ -1,6 +1,6 @@
 """Kinematic level-set colliders (plane, box, sphere, cylinder) and the Stomakhin et al. 2013 response.
 
-Each collider is one row of a float64 table so a kernel can loop over them without objects:
+Each collider is one row of a float64 table (packed by pdmpm_cli.assemble) so a kernel loops over them without objects:
   0 kind | 1-3 point/centre | 4-6 normal, box half-size or cylinder axis | 7 radius | 8 half height |
   9 sign (+1, or -1 inside-out) | 10-12 velocity | 13 boundary (0 sticky, 1 slip, 2 separate) | 14 friction
 The collider moves with constant velocity: its centre at time t is centre + velocity t.
@@ -8,39 +8,12 @@ The collider moves with constant velocity: its centre at time t is centre + velo
 
 import math
 
-import numpy as np
 from numba import njit
 
 PLANE, BOX, SPHERE, CYLINDER = 0, 1, 2, 3
 STICKY, SLIP, SEPARATE = 0, 1, 2
 BOUNDARY_CODES = {"sticky": STICKY, "slip": SLIP, "separate": SEPARATE}
 ROW = 15
-
-
-def _unit(v):
-    v = np.asarray(v, dtype=np.float64)
-    return v / np.linalg.norm(v)
-
-
-def collider_table(colliders) -> np.ndarray:
-    """Pack validated scene colliders into the (n, ROW) table the kernels read."""
-    table = np.zeros((len(colliders), ROW))
-    for i, c in enumerate(colliders):
-        row = table[i]
-        row[9] = -1.0 if getattr(c, "inside_out", False) else 1.0
-        row[10:13] = c.velocity
-        row[13] = BOUNDARY_CODES[c.boundary]
-        row[14] = c.friction
-        if c.type == "plane":
-            row[0], row[1:4], row[4:7] = PLANE, c.point, _unit(c.normal)
-        elif c.type == "box":
-            row[0], row[1:4], row[4:7] = BOX, c.center, 0.5 * np.asarray(c.size)
-        elif c.type == "sphere":
-            row[0], row[1:4], row[7] = SPHERE, c.center, c.radius
-        else:
-            row[0], row[1:4], row[4:7] = CYLINDER, c.center, _unit(c.axis)
-            row[7], row[8] = c.radius, 0.5 * c.height
-    return table
 
 
 @njit(cache=True)

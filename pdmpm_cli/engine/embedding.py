@@ -13,7 +13,7 @@ bonds) would otherwise amplify a small misalignment into a vertex thrown metres 
 import numpy as np
 from numba import njit, prange
 
-from pdmpm_cli.engine.bonds import bond_vector
+from pdmpm_cli.engine.bonds import bond_vector, influence
 
 REGULARISATION = 1e-6  # eps: a relative stiffness of 1e-6 pulls missing directions to the identity
 STRETCH_LIMIT = 2.0  # singular values of F stay within [1 / STRETCH_LIMIT, STRETCH_LIMIT]
@@ -34,7 +34,7 @@ def local_deformation(particle_x, rest_x, particle_volume, bond_start, bond_nbr,
             q = bond_nbr[b]
             x0, x1, x2, r = bond_vector(rest_x, p, q)
             e0, e1, e2, _ = bond_vector(particle_x, p, q)
-            wv = max(1.0 - r / delta, 0.0) * particle_volume[q]
+            wv = max(influence(r, delta), 0.0) * particle_volume[q]
             xi = (x0, x1, x2)
             eta = (e0, e1, e2)
             for i in range(3):

@@ -18,36 +18,49 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from pdmpm_cli.engine.bonds import bond_vector
-from pdmpm_cli.engine.bspline import cubic_weights_grad
 from pdmpm_cli.engine.colliders import collide_all, push_out
-from pdmpm_cli.engine.transfer import particle_speed, stencil_on_grid
+from pdmpm_cli.engine.kernel import Kernel
+from pdmpm_cli.engine.transfer import particle_speed, stencil_on_grid, stencil_with_gradients
 
 CONTACT_DAMAGE = 0.5  # crack particles with at least this damage (mostly detached) take part in grid contact
 SPLIT_COS = math.cos(math.pi / 4.0)  # candidates whose bonds open in directions > 45 degrees apart: two cracks
+
+
+@njit(cache=True, inline="always")
+def cell_key(particle_x, p, origin, inv_dx, cells):
+    """Linear index of particle p's grid cell (particles outside the grid count in the nearest boundary cell)."""
+    k = 0
+    for a in range(3):
+        i = int(math.floor((particle_x[p, a] - origin[a]) * inv_dx))
+        i = 0 if i < 0 else (cells[a] - 1 if i > cells[a] - 1 else i)
+        k = k * cells[a] + i
+    return k
+
+
+@njit(cache=True, inline="always")
+def broken_bonds(p, bond_start, bond_active):
+    """Number of p's broken bonds."""
+    nb = 0
+    for b in range(bond_start[p], bond_start[p + 1]):
+        if bond_active[b] == 0:
+            nb += 1
+    return nb
 
 
 @njit(parallel=True, cache=True)
 def inactive_fraction(particle_x, origin, inv_dx, cells, bond_start, bond_active, particle_inactive):
     """p_inactive of eq. 21: broken / all bonds of the particles in each particle's cell -> particle_inactive.
 
-    Cells are grouped by sorting their linear keys; the counts are integers, so the result does not depend
-    on the thread count. Particles outside the grid count in the nearest boundary cell."""
+    Cells are grouped by sorting their keys (the GPU counts into dense cell arrays with atomics instead); the counts
+    are integers, so the result depends neither on the thread count nor on the backend."""
     n = particle_x.shape[0]
     key = np.empty(n, np.int64)
     broken = np.empty(n, np.int64)
     total = 0
     for p in prange(n):
-        k = 0
-        for a in range(3):
-            i = min(max(int(math.floor((particle_x[p, a] - origin[a]) * inv_dx)), 0), cells[a] - 1)
-            k = k * cells[a] + i
-        key[p] = k
-        nb = 0
-        for b in range(bond_start[p], bond_start[p + 1]):
-            if bond_active[b] == 0:
-                nb += 1
-        broken[p] = nb
-        total += nb
+        key[p] = cell_key(particle_x, p, origin, inv_dx, cells)
+        broken[p] = broken_bonds(p, bond_start, bond_active)
+        total += broken[p]
     if total == 0:
         particle_inactive[:] = 0.0
         return
@@ -69,37 +82,47 @@ def inactive_fraction(particle_x, origin, inv_dx, cells, bond_start, bond_active
         i = j
 
 
+@njit(cache=True)
+def criterion_at(p, threshold, resistance, particle_x, rest_x, bond_start, bond_nbr, bond_active, bond_ep,
+                 particle_inactive, particle_lmax, particle_bmax):
+    """Largest eq. 21 criterion over p's active bonds -> particle_lmax[p], its bond -> particle_bmax[p] (0 and -1
+    without active bonds); returns 1 if it is over the threshold (a fracture candidate), else 0.
+
+    `resistance` k weighs p_inactive: l = (s - e_p) / (1 + k p_inactive); k = 1 is eq. 21. bond_ep of shape (0,)
+    means no plasticity (e_p = 0)."""
+    has_ep = bond_ep.shape[0] > 0
+    scale = 1.0 / (1.0 + resistance * particle_inactive[p])
+    best = -math.inf
+    arg = -1
+    for b in range(bond_start[p], bond_start[p + 1]):
+        if bond_active[b] == 0:
+            continue
+        q = bond_nbr[b]
+        s = bond_vector(particle_x, p, q)[3] / bond_vector(rest_x, p, q)[3] - 1.0
+        if has_ep:
+            s -= bond_ep[b]
+        if s * scale > best:
+            best = s * scale
+            arg = b
+    if arg < 0:
+        best = 0.0
+    particle_lmax[p] = best
+    particle_bmax[p] = arg
+    return 1 if arg >= 0 and best > threshold else 0
+
+
 @njit(parallel=True, cache=True)
 def bond_criterion(start, end, threshold, resistance, particle_x, rest_x, bond_start, bond_nbr, bond_active,
                    bond_ep, particle_inactive, particle_lmax, particle_bmax):
-    """Largest eq. 21 criterion over each particle's active bonds -> particle_lmax, its bond -> particle_bmax.
-
-    `resistance` k weighs p_inactive: l = (s - e_p) / (1 + k p_inactive); k = 1 is eq. 21.
-    A particle without active bonds gets 0 and -1. bond_ep of shape (0,) means no plasticity (e_p = 0).
-    Returns the number of particles of start..end-1 over the threshold (fracture candidates)."""
-    has_ep = bond_ep.shape[0] > 0
+    """`criterion_at` for particles start..end-1; returns the number of candidates."""
     count = 0
     for p in prange(start, end):
-        scale = 1.0 / (1.0 + resistance * particle_inactive[p])
-        best = -np.inf
-        arg = -1
-        for b in range(bond_start[p], bond_start[p + 1]):
-            if bond_active[b] == 0:
-                continue
-            q = bond_nbr[b]
-            s = bond_vector(particle_x, p, q)[3] / bond_vector(rest_x, p, q)[3] - 1.0
-            if has_ep:
-                s -= bond_ep[b]
-            if s * scale > best:
-                best = s * scale
-                arg = b
-        if arg < 0:
-            best = 0.0
-        particle_lmax[p] = best
-        particle_bmax[p] = arg
-        if arg >= 0 and best > threshold:
-            count += 1
+        count += criterion_at(p, threshold, resistance, particle_x, rest_x, bond_start, bond_nbr, bond_active,
+                              bond_ep, particle_inactive, particle_lmax, particle_bmax)
     return count
+
+
+CRITERION = Kernel(criterion_at, bond_criterion, reduce="sum")
 
 
 @njit(cache=True)
@@ -248,122 +271,136 @@ def pieces(bond_start, bond_nbr, intact, start: int, end: int) -> np.ndarray:
     return connected_components(graph, directed=False)[1]
 
 
+@njit(cache=True)
+def damage_at(p, bond_start, bond_active, particle_damage, particle_crack):
+    """Damage = broken / initial bonds -> particle_damage[p]; 1 if any bond is broken -> particle_crack[p]."""
+    broken = broken_bonds(p, bond_start, bond_active)
+    initial = bond_start[p + 1] - bond_start[p]
+    particle_damage[p] = broken / initial if initial > 0 else 0.0
+    particle_crack[p] = 1 if broken > 0 else 0
+
+
 @njit(parallel=True, cache=True)
 def damage(bond_start, bond_active, particle_damage, particle_crack):
-    """Damage = broken / initial bonds -> particle_damage; 1 if any bond is broken -> particle_crack."""
+    """`damage_at` for every particle."""
     for p in prange(bond_start.shape[0] - 1):
-        broken = 0
-        for b in range(bond_start[p], bond_start[p + 1]):
-            if bond_active[b] == 0:
-                broken += 1
-        initial = bond_start[p + 1] - bond_start[p]
-        particle_damage[p] = broken / initial if initial > 0 else 0.0
-        particle_crack[p] = 1 if broken > 0 else 0
+        damage_at(p, bond_start, bond_active, particle_damage, particle_crack)
 
 
 @njit(cache=True)
-def crack_contact(grid, dt, gravity, origin, inv_dx, particle_crack, particle_damage, particle_mass,
-                  particle_volume, particle_force, particle_x, particle_v):
-    """Crack-surface particles: v += dt (f / m + g) by their own bond force, then an inelastic normal contact with
-    the material on the grid (intact particles, other bodies) -> particle_v and the grid velocities.
+def crack_contact_at(p, grid, dt, gravity, origin, inv_dx, particle_damage, particle_mass, particle_volume,
+                     particle_force, particle_x, particle_v, wx, wy, wz, gx, gy, gz):
+    """Crack-surface particle p: v += dt (f / m + g) by its own bond force, then an inelastic normal contact with the
+    material on the grid (intact particles, other bodies) -> particle_v[p] and the grid velocities.
 
-    A crack particle with damage >= CONTACT_DAMAGE, inside the grid's material (interpolated mass m_g over half
-    a cell of its own density) and approaching it along n = -grad m_g loses its normal velocity relative to the
-    grid's, v_g, as in a perfectly inelastic collision of m_p with m_g; the grid takes the opposite impulse J,
-    node velocities changing by -w_i J / m_g. Momentum is conserved exactly and the kinetic energy cannot grow
-    (docs/method.md, 'Fracture'). Serial: every contact writes grid nodes, in a fixed order."""
+    With damage >= CONTACT_DAMAGE, inside the grid's material (interpolated mass m_g over half a cell of its own
+    density) and approaching it along n = -grad m_g, it loses its normal velocity relative to the grid's, v_g, as
+    in a perfectly inelastic collision of m_p with m_g; the grid takes the opposite impulse J, node velocities
+    changing by -w_i J / m_g. Momentum is conserved exactly and the kinetic energy cannot grow (docs/method.md,
+    'Fracture'). Each contact reads the grid the previous ones changed: run in particle order (`crack_contact`)."""
+    mp = particle_mass[p]
+    for a in range(3):
+        particle_v[p, a] += dt * (particle_force[p, a] / mp + gravity[a])
+    if particle_damage[p] < CONTACT_DAMAGE:
+        return
+    fx, fy, fz, bx, by, bz = stencil_with_gradients(particle_x, p, origin, inv_dx, wx, wy, wz, gx, gy, gz)
+    if not stencil_on_grid(fx, fy, fz, grid):
+        return
+    mg = 0.0
+    g0 = g1 = g2 = 0.0
+    m0 = m1 = m2 = 0.0
+    for i in range(4):
+        for j in range(4):
+            for k in range(4):
+                m = grid[bx + i, by + j, bz + k, 0]
+                if m <= 0.0:
+                    continue
+                w = wx[i] * wy[j] * wz[k]
+                mg += w * m
+                g0 += gx[i] * wy[j] * wz[k] * m
+                g1 += wx[i] * gy[j] * wz[k] * m
+                g2 += wx[i] * wy[j] * gz[k] * m
+                m0 += w * m * grid[bx + i, by + j, bz + k, 1]
+                m1 += w * m * grid[bx + i, by + j, bz + k, 2]
+                m2 += w * m * grid[bx + i, by + j, bz + k, 3]
+    g = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
+    dx3 = 1.0 / (inv_dx * inv_dx * inv_dx)
+    if mg < 0.5 * mp / particle_volume[p] * dx3 or g == 0.0:
+        return
+    rel = 0.0
+    rel -= (particle_v[p, 0] - m0 / mg) * g0 / g
+    rel -= (particle_v[p, 1] - m1 / mg) * g1 / g
+    rel -= (particle_v[p, 2] - m2 / mg) * g2 / g
+    if rel >= 0.0:
+        return
+    impulse = -rel * mp * mg / (mp + mg)  # > 0, along n = -grad / |grad|
+    particle_v[p, 0] -= impulse / mp * g0 / g
+    particle_v[p, 1] -= impulse / mp * g1 / g
+    particle_v[p, 2] -= impulse / mp * g2 / g
+    for i in range(4):
+        for j in range(4):
+            for k in range(4):
+                if grid[bx + i, by + j, bz + k, 0] <= 0.0:
+                    continue
+                w = wx[i] * wy[j] * wz[k]
+                grid[bx + i, by + j, bz + k, 1] += w * impulse / mg * g0 / g
+                grid[bx + i, by + j, bz + k, 2] += w * impulse / mg * g1 / g
+                grid[bx + i, by + j, bz + k, 3] += w * impulse / mg * g2 / g
+
+
+@njit(cache=True)
+def crack_contact(grid, dt, gravity, origin, inv_dx, crack_index, particle_damage, particle_mass, particle_volume,
+                  particle_force, particle_x, particle_v):
+    """`crack_contact_at` for the crack particles in crack_index, serially in that order: each contact writes grid
+    nodes that the next may read."""
     wx, wy, wz = np.empty(4), np.empty(4), np.empty(4)
     gx, gy, gz = np.empty(4), np.empty(4), np.empty(4)
-    dx3 = 1.0 / (inv_dx * inv_dx * inv_dx)
-    for p in range(particle_x.shape[0]):
-        if particle_crack[p] == 0:
-            continue
-        mp = particle_mass[p]
-        for a in range(3):
-            particle_v[p, a] += dt * (particle_force[p, a] / mp + gravity[a])
-        if particle_damage[p] < CONTACT_DAMAGE:
-            continue
-        fx = (particle_x[p, 0] - origin[0]) * inv_dx
-        fy = (particle_x[p, 1] - origin[1]) * inv_dx
-        fz = (particle_x[p, 2] - origin[2]) * inv_dx
-        if not stencil_on_grid(fx, fy, fz, grid):
-            continue
-        bx = cubic_weights_grad(fx, wx, gx)
-        by = cubic_weights_grad(fy, wy, gy)
-        bz = cubic_weights_grad(fz, wz, gz)
-        mg = 0.0
-        grad = np.zeros(3)
-        mom = np.zeros(3)
-        for i in range(4):
-            for j in range(4):
-                for k in range(4):
-                    m = grid[bx + i, by + j, bz + k, 0]
-                    if m <= 0.0:
-                        continue
-                    w = wx[i] * wy[j] * wz[k]
-                    mg += w * m
-                    grad[0] += gx[i] * wy[j] * wz[k] * m
-                    grad[1] += wx[i] * gy[j] * wz[k] * m
-                    grad[2] += wx[i] * wy[j] * gz[k] * m
-                    for a in range(3):
-                        mom[a] += w * m * grid[bx + i, by + j, bz + k, 1 + a]
-        g = math.sqrt(grad[0] ** 2 + grad[1] ** 2 + grad[2] ** 2)
-        if mg < 0.5 * mp / particle_volume[p] * dx3 or g == 0.0:
-            continue
-        rel = 0.0
-        for a in range(3):
-            rel -= (particle_v[p, a] - mom[a] / mg) * grad[a] / g
-        if rel >= 0.0:
-            continue
-        impulse = -rel * mp * mg / (mp + mg)  # > 0, along n = -grad / |grad|
-        for a in range(3):
-            particle_v[p, a] -= impulse / mp * grad[a] / g
-        for i in range(4):
-            for j in range(4):
-                for k in range(4):
-                    if grid[bx + i, by + j, bz + k, 0] <= 0.0:
-                        continue
-                    w = wx[i] * wy[j] * wz[k]
-                    for a in range(3):
-                        grid[bx + i, by + j, bz + k, 1 + a] += w * impulse / mg * grad[a] / g
+    for i in range(crack_index.shape[0]):
+        crack_contact_at(crack_index[i], grid, dt, gravity, origin, inv_dx, particle_damage, particle_mass,
+                         particle_volume, particle_force, particle_x, particle_v, wx, wy, wz, gx, gy, gz)
+
+
+@njit(cache=True)
+def crack_update_at(p, dt, t_new, colliders, lo, hi, particle_x, particle_v, particle_C, v, nrm):
+    """Grid-free symplectic Euler of crack-surface particle p (end of section 6), after the contact set its velocity
+    -> particle_x, _v, _C. Collider response, x += dt v, then push-out and the box [lo, hi] (a separating wall).
+    C = 0: the particle takes no affine motion from a grid. Returns its speed, or -1 if it is not finite."""
+    for a in range(3):
+        v[a] = particle_v[p, a]
+    if colliders.shape[0]:
+        collide_all(colliders, particle_x[p, 0], particle_x[p, 1], particle_x[p, 2], t_new, v, nrm)
+    for a in range(3):
+        particle_x[p, a] += dt * v[a]
+    if colliders.shape[0]:
+        push_out(colliders, particle_x[p], t_new, nrm)
+    for a in range(3):
+        if particle_x[p, a] < lo[a]:
+            particle_x[p, a] = lo[a]
+            v[a] = v[a] if v[a] > 0.0 else 0.0
+        elif particle_x[p, a] > hi[a]:
+            particle_x[p, a] = hi[a]
+            v[a] = v[a] if v[a] < 0.0 else 0.0
+        particle_v[p, a] = v[a]
+        for c in range(3):
+            particle_C[p, a, c] = 0.0
+    return particle_speed(v[0], v[1], v[2], particle_x, p)
 
 
 @njit(parallel=True, cache=True)
-def crack_particle_update(dt, t_new, colliders, lo, hi, particle_crack, particle_x, particle_v, particle_C):
-    """Grid-free symplectic Euler of crack-surface particles (end of section 6), after crack_contact set their
-    velocity -> particle_x, _v, _C.
-
-    Collider response, x += dt v, then push-out and the box [lo, hi] (a separating wall). C = 0: the particle
-    takes no affine motion from a grid. Returns (max speed, non-finite count) over the crack particles, like
-    g2p."""
-    vmax = 0.0
-    bad = 0
-    for p in prange(particle_x.shape[0]):
-        if particle_crack[p] == 0:
-            continue
+def crack_particle_update(dt, t_new, colliders, lo, hi, crack_index, particle_x, particle_v, particle_C):
+    """`crack_update_at` for the crack particles in crack_index. Returns (max speed, non-finite count), like g2p."""
+    n = crack_index.shape[0]
+    speed = np.zeros(n)
+    for i in prange(n):
         v = np.empty(3)
         nrm = np.empty(3)
-        for a in range(3):
-            v[a] = particle_v[p, a]
-        if colliders.shape[0]:
-            collide_all(colliders, particle_x[p, 0], particle_x[p, 1], particle_x[p, 2], t_new, v, nrm)
-        for a in range(3):
-            particle_x[p, a] += dt * v[a]
-        if colliders.shape[0]:
-            push_out(colliders, particle_x[p], t_new, nrm)
-        for a in range(3):
-            if particle_x[p, a] < lo[a]:
-                particle_x[p, a] = lo[a]
-                v[a] = max(v[a], 0.0)
-            elif particle_x[p, a] > hi[a]:
-                particle_x[p, a] = hi[a]
-                v[a] = min(v[a], 0.0)
-            particle_v[p, a] = v[a]
-            for c in range(3):
-                particle_C[p, a, c] = 0.0
-        s = particle_speed(v[0], v[1], v[2], particle_x, p)
-        if s < 0.0:
+        speed[i] = crack_update_at(crack_index[i], dt, t_new, colliders, lo, hi, particle_x, particle_v, particle_C,
+                                   v, nrm)
+    bad = 0
+    vmax = 0.0
+    for i in range(n):
+        if speed[i] < 0.0:
             bad += 1
         else:
-            vmax = max(vmax, s)
+            vmax = max(vmax, speed[i])
     return vmax, bad

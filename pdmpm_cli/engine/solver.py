@@ -1,21 +1,41 @@
-"""Explicit MPM step with peridynamic bond forces (paper section 3) and the frame loop around it."""
+"""Explicit MPM step with peridynamic bond forces (paper section 3) and the frame loop around it.
+
+The step reads top to bottom as the paper's loop: bond forces (eq. 4, then each body's material), P2G, the grid
+update, the crack particles' own integrator and G2P, then fracture. A part a scene does not need is skipped by a
+switch the Plan set once (`plan.fbar`, `plan.fracture`); materials are called through their registry entries,
+never by type. The backend (engine/backends) runs each part on the CPU or the GPU."""
 
 import time
 from collections import defaultdict
+from contextlib import contextmanager
 
 import numpy as np
 
-from pdmpm_cli.engine.bonds import averaged_deformation
+from pdmpm_cli.engine.bonds import AVERAGED_DEFORMATION, averaged_deformation, bond_reference_terms
+from pdmpm_cli.engine.fracture import CRITERION, damage, fracture_update
+from pdmpm_cli.engine.materials import MATERIALS, declared_fields
+from pdmpm_cli.engine.model import Model
 from pdmpm_cli.engine.parallel import particle_chunks
-from pdmpm_cli.engine.fracture import (bond_criterion, crack_contact, crack_particle_update, damage, fracture_update,
-                                      inactive_fraction)
-from pdmpm_cli.engine.materials import MATERIALS
-from pdmpm_cli.engine.model import Model, State
-from pdmpm_cli.engine.transfer import WALL, g2p, grid_update, p2g, position_bounds
-from pdmpm_cli.errors import SimulationError
-from pdmpm_cli.plan import Plan
+from pdmpm_cli.engine.plan import Plan
+from pdmpm_cli.engine.state import State
+from pdmpm_cli.engine.transfer import WALL
+from pdmpm_cli.errors import InputError, SimulationError
 
 RUNAWAY_FACTOR = 10.0  # kinetic energy above this multiple of the energy budget is a blow-up
+
+
+def initial_state(model: Model, plan: Plan, velocity: np.ndarray, velocity_gradient: np.ndarray) -> State:
+    """The State at t = 0: the Plan's arrays, particles at rest positions with their initial velocity and APIC
+    matrix, the reference families, and the reference bond factors (w V_q, 1 / |xi|) where they exist."""
+    declared = declared_fields()
+    shapes = {name: shape for name, (shape, _) in plan.fields.items() if name in declared}
+    state = State.allocate(declared, shapes, {
+        "particle_x": model.rest_x, "particle_v": velocity, "particle_C": velocity_gradient,
+        "bond_start": model.bond_start, "bond_nbr": model.bond_nbr})
+    if state.has("bond_wv"):
+        bond_reference_terms(model.rest_x, model.particle_volume, model.bond_start, model.bond_nbr,
+                             model.particle_body, model.body_horizon, state.bond_wv, state.bond_inv_len)
+    return state
 
 
 def kinetic_energy(particle_mass: np.ndarray, particle_v: np.ndarray) -> float:
@@ -29,135 +49,169 @@ def pin_speed(model: Model) -> float:
     return float(np.linalg.norm(model.pin_velocity[held], axis=1).max()) if held.any() else 0.0
 
 
-class Solver:
-    """Runs the Plan's phases on a State; one method per phase, each one jitted kernel."""
+def make_backend(name: str):
+    """The backend of that name; numba.cuda is imported only for 'cuda', and a machine without a usable GPU (or
+    numba's simulator) is refused as bad input."""
+    if name == "cuda":
+        if not hasattr(np, "row_stack"):
+            np.row_stack = np.vstack  # numba-cuda 0.30 still calls np.row_stack, which numpy 2.5 removed
+        try:
+            from numba import cuda
+        except ImportError as e:
+            raise InputError(f"simulation.backend = cuda: numba.cuda cannot be imported ({e}); install numba-cuda, "
+                             f"or run with --backend cpu") from e
+        if not cuda.is_available():
+            raise InputError("simulation.backend = cuda needs an NVIDIA GPU with a working CUDA driver, and numba.cuda "
+                             "finds none; run with --backend cpu (or set NUMBA_ENABLE_CUDASIM=1 to run the CUDA "
+                             "kernels on numba's simulator, for testing only: it is very slow)")
+        from pdmpm_cli.engine.backends.cuda import CudaBackend
 
-    def __init__(self, model: Model, plan: Plan):
+        return CudaBackend()
+    from pdmpm_cli.engine.backends.cpu import CpuBackend
+
+    return CpuBackend()
+
+
+class Solver:
+    """Steps one State with the Plan's parts on a backend. Everything that evolves lives in the State."""
+
+    def __init__(self, model: Model, plan: Plan, backend=None, profile: bool = False):
         self.model = model
         self.plan = plan
-        self.vmax = 0.0
-        self.crack_vmax = 0.0  # max speed of the crack particles, set before g2p each step
-        self.energy_budget = 0.0
-        self.energy_prev = 0.0  # kinetic + strain energy at the previous frame [J]
-        self.phase_time = defaultdict(float)  # seconds spent in each phase, for benchmarks
+        self.backend = backend if backend is not None else make_backend(plan.backend)
+        self.kinds = [MATERIALS[b.kind] for b in model.bodies]
+        self.fbar_bodies = [i for i, (k, b) in enumerate(zip(self.kinds, model.bodies)) if k.uses_fbar(b.params)]
+        self.fracture_bodies = [i for i, b in enumerate(model.bodies) if b.fracture is not None]
+        self.phase_time = defaultdict(float)  # seconds spent in each part of the step, for benchmarks
         self.clock = time.perf_counter  # the phase timer (benchmarks on a busy machine use process time)
-        self.yield_residual = -1.0  # largest f / psi_p after any return map so far (0: exactly on the surface)
-        self.bonds_cut = 0  # bonds removed by fracture planes so far
-        kinds = [b.model for b in plan.bodies]
-        self.bodies_of = {k: [i for i, kk in enumerate(kinds) if kk == k] for k in kinds}
-        self.fbar_bodies = [i for i, (k, mat) in enumerate(zip(kinds, model.materials))
-                            if MATERIALS[k].needs_fbar(mat)]
-        self.fracture_bodies = [i for i, f in enumerate(model.fracture) if f is not None]
-        if self.fracture_bodies:
-            nodes = np.asarray(model.grid_shape)
-            self.cells = (nodes - 1).astype(np.int64)
-            self.valid_lo = model.origin + WALL * model.dx
-            self.valid_hi = model.origin + (nodes - 1 - WALL) * model.dx
+        self.profile = profile  # the CUDA backend synchronises after every part, so the times are the GPU's
+        self.state = None  # the State this solver steps, bound by start()
+        self.a = None  # the backend's arrays of the state (host or device), by name
+        self.m = None  # the backend's arrays of the model
+        self.box = None  # the node box P2G touched this step
+        self.crack_index = np.zeros(0, np.int64)  # the crack-surface particles, in order
+        nodes = np.asarray(model.grid_shape)
+        self.cells = (nodes - 1).astype(np.int64)
+        self.valid_lo = model.origin + WALL * model.dx
+        self.valid_hi = model.origin + (nodes - 1 - WALL) * model.dx
 
-    # ---- phases
-    def fbar(self, state: State, dt: float = 0.0):
-        """Eq. 4 for the bodies whose material uses Fbar."""
-        m = self.model
-        for body in self.fbar_bodies:
-            start, end = m.body_ranges[body]
-            averaged_deformation(start, end, state.particle_x, m.rest_x, state.bond_start, state.bond_nbr,
-                                 state.bond_wv, m.particle_Kinv, state.particle_Fbar, particle_chunks())
-
-    def material_phase(self, state: State, stage: str, kind: str, dt: float):
-        """Run a material's phase (e.g. return_map:plastic, bonds:elastic) on every body of that kind."""
-        fn = MATERIALS[kind].phases[stage]
-        for body in self.bodies_of[kind]:
-            result = fn(self.model, state, body, dt)
-            if stage == "return_map":
-                self.yield_residual = max(self.yield_residual, result)
-
-    def node_box(self, state: State) -> np.ndarray:
-        """Node index box [i0, i1) x [j0, j1) x [k0, k1) touched by the particles' B-spline stencils."""
-        m = self.model
-        x_lo, x_hi = position_bounds(state.particle_x, particle_chunks())
-        lo = np.floor((x_lo - m.origin) / m.dx).astype(np.int64) - 2
-        hi = np.floor((x_hi - m.origin) / m.dx).astype(np.int64) + 4
-        shape = np.asarray(m.grid_shape)
-        lo = np.clip(lo, 0, shape)
-        hi = np.clip(hi, 0, shape)
-        return np.array([lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]], dtype=np.int64)
-
-    def step_size(self) -> float:
-        """dt = min(dt_max, cfl dx / (c + |v|max)) (METHOD.md section 6)."""
-        p = self.plan
-        return min(p.dt_max, p.dt_cfl * p.wave_speed / (p.wave_speed + self.vmax))
-
-    def p2g(self, state: State, dt: float):
-        m = self.model
-        self.box = self.node_box(state)
-        outside = p2g(state.particle_x, state.particle_v, state.particle_C, m.particle_mass, state.particle_force,
-                      state.particle_crack, m.pin_mask, dt, m.origin, 1.0 / m.dx, self.box, state.grid_private, state.grid)
-        if outside:
-            self.fail_outside(state)
-
-    def grid_update(self, state: State, dt: float):
-        m = self.model
-        grid_update(state.grid, dt, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, self.box,
-                    state.time + dt, m.colliders, m.wall_boundary, m.wall_friction)
-
-    def g2p(self, state: State, dt: float):
-        m = self.model
-        vmax, bad = g2p(state.grid, dt, m.origin, 1.0 / m.dx, state.time + dt, m.colliders, m.pin_mask,
-                        m.pin_velocity, m.pin_stop, state.particle_crack, state.particle_x, state.particle_v,
-                        state.particle_C, particle_chunks())
-        self.vmax = max(vmax, self.crack_vmax)
-        if bad:
-            self.fail_nonfinite(state)
-
-    def crack(self, state: State, dt: float):
-        """Crack-surface particles advance by their own bond forces, gravity and collisions (section 6), and
-        meet the material on the grid in an inelastic contact."""
-        m = self.model
-        crack_contact(state.grid, dt, m.gravity, m.origin, 1.0 / m.dx, state.particle_crack, state.particle_damage,
-                      m.particle_mass, m.particle_volume, state.particle_force, state.particle_x, state.particle_v)
-        self.crack_vmax, bad = crack_particle_update(dt, state.time + dt, m.colliders, self.valid_lo, self.valid_hi,
-                                                     state.particle_crack, state.particle_x, state.particle_v,
-                                                     state.particle_C)
-        if bad:
-            self.fail_nonfinite(state)
-
-    def fracture(self, state: State, dt: float):
-        """Eq. 21 criterion, clustering and fracture planes (section 6), then damage and crack-particle flags.
-
-        Particles with a broken bond stop using Fbar (elastic.py), so K^-1 never needs recomputing."""
-        m = self.model
-        inactive_fraction(state.particle_x, m.origin, 1.0 / m.dx, self.cells, state.bond_start, state.bond_active,
-                          state.particle_inactive)
-        cut = 0
-        for body in self.fracture_bodies:
-            start, end = m.body_ranges[body]
-            threshold = m.fracture[body].threshold
-            if bond_criterion(start, end, threshold, m.fracture[body].damage_resistance, state.particle_x, m.rest_x,
-                              state.bond_start, state.bond_nbr, state.bond_active, state.bond_ep,
-                              state.particle_inactive, state.particle_lmax, state.particle_bmax):
-                cut += fracture_update(threshold, m.body_horizon[body], start, end, state.particle_x, m.rest_x,
-                                       state.bond_start, state.bond_nbr, state.bond_active, state.particle_lmax,
-                                       state.particle_bmax)
-        if cut:
-            self.bonds_cut += cut
-            damage(state.bond_start, state.bond_active, state.particle_damage, state.particle_crack)
-
+    # ---- the step
     def substep(self, state: State, dt: float):
-        """One explicit step: the Plan's phases in order, each timed."""
-        for phase in self.plan.phases:
-            t0 = self.clock()
-            stage, _, kind = phase.partition(":")
-            if kind:
-                self.material_phase(state, stage, kind, dt)
-            else:
-                getattr(self, phase)(state, dt)
-            self.phase_time[phase] += self.clock() - t0
+        """One explicit step (paper section 3)."""
+        self.forces(state, dt)
+        with self.timed("p2g"):
+            if self.backend.p2g(self, state, dt):
+                self.fail_outside(state)
+        with self.timed("grid_update"):
+            self.backend.grid_update(self, state, dt)
+        crack_vmax = 0.0
+        if self.plan.fracture:
+            with self.timed("crack"):
+                crack_vmax = self.crack(state, dt)
+        with self.timed("g2p"):
+            vmax, bad = self.backend.g2p(self, state, dt)
+            if bad:
+                self.fail_nonfinite(state)
+        state.vmax = max(vmax, crack_vmax)
+        if self.plan.fracture:
+            with self.timed("fracture"):
+                self.fracture(state)
         state.step += 1
         state.time += dt
         state.dt_prev = dt
 
+    def forces(self, state: State, dt: float):
+        """particle_force of every body: Fbar (eq. 4) where a material reads it, then each body's material."""
+        if self.plan.fbar:
+            with self.timed("fbar"):
+                self.fbar()
+        for hook in ("before_forces", "forces", "after_forces"):
+            for i, kind in enumerate(self.kinds):
+                fn = getattr(kind, hook)
+                if fn is not None:
+                    with self.timed(f"{fn.__name__}:{kind.name}"):
+                        fn(self, i, dt)
+
+    def bond_forces(self, dt: float):
+        """particle_force of every body from the current positions alone, without the materials' other hooks (no
+        return map, no family rebuild): what the stiffness probes of engine.spectrum and the studies need."""
+        if self.plan.fbar:
+            self.fbar()
+        for i, kind in enumerate(self.kinds):
+            kind.forces(self, i, dt)
+
+    def fbar(self):
+        """Eq. 4 for the bodies whose material uses Fbar."""
+        a, m = self.a, self.m
+        for i in self.fbar_bodies:
+            b = self.model.bodies[i]
+            self.backend.run(AVERAGED_DEFORMATION, b.start, b.end, a.particle_x, m.rest_x, a.bond_start, a.bond_nbr,
+                             a.bond_wv, m.particle_Kinv, a.particle_Fbar, particle_chunks())
+
+    def crack(self, state: State, dt: float) -> float:
+        """Crack-surface particles advance by their own bond forces, gravity and collisions (section 6), and meet
+        the material on the grid in an inelastic contact. Returns their largest speed."""
+        if not len(self.crack_index):
+            return 0.0
+        vmax, bad = self.backend.crack(self, state, dt)
+        if bad:
+            self.fail_nonfinite(state)
+        return vmax
+
+    def fracture(self, state: State):
+        """Eq. 21 criterion, clustering and fracture planes (section 6), then damage and the crack particles.
+
+        Particles with a broken bond stop using Fbar (elastic.py), so K^-1 never needs recomputing. The clustering
+        is serial and runs on the host."""
+        be, a, m = self.backend, self.a, self.m
+        be.inactive_fraction(self, state)
+        candidates = []
+        for i in self.fracture_bodies:
+            b = self.model.bodies[i]
+            if be.run(CRITERION, b.start, b.end, b.fracture.threshold, b.fracture.damage_resistance, a.particle_x,
+                      m.rest_x, a.bond_start, a.bond_nbr, a.bond_active, a.bond_ep, a.particle_inactive,
+                      a.particle_lmax, a.particle_bmax):
+                candidates.append(b)
+        if not candidates:
+            return
+        cut = 0
+        with be.on_host(state, ("particle_x", "bond_active", "particle_lmax", "particle_bmax", "particle_damage",
+                                "particle_crack"), changed=("bond_active", "particle_damage", "particle_crack")):
+            for b in candidates:
+                cut += fracture_update(b.fracture.threshold, b.horizon, b.start, b.end, state.particle_x,
+                                       self.model.rest_x, state.bond_start, state.bond_nbr, state.bond_active,
+                                       state.particle_lmax, state.particle_bmax)
+            if cut:
+                damage(state.bond_start, state.bond_active, state.particle_damage, state.particle_crack)
+                self.crack_index = np.flatnonzero(state.particle_crack).astype(np.int64)
+        if cut:
+            state.bonds_cut += cut
+            be.crack_particles_changed(self, state)
+
+    @contextmanager
+    def timed(self, name: str):
+        t0 = self.clock()
+        yield
+        if self.profile:
+            self.backend.synchronize()
+        self.phase_time[name] += self.clock() - t0
+
+    def box_of(self, lo, hi) -> np.ndarray:
+        """Node index box [i0, i1) x [j0, j1) x [k0, k1) of the B-spline stencils of particles within [lo, hi]."""
+        m = self.model
+        shape = np.asarray(m.grid_shape)
+        lo = np.clip(np.floor((lo - m.origin) / m.dx).astype(np.int64) - 2, 0, shape)
+        hi = np.clip(np.floor((hi - m.origin) / m.dx).astype(np.int64) + 4, 0, shape)
+        return np.array([lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]], dtype=np.int64)
+
+    def step_size(self) -> float:
+        """dt = min(dt_max, cfl dx / (c + |v|max)) (section 6 of the method)."""
+        p = self.plan
+        return min(p.dt_max, p.dt_cfl * p.wave_speed / (p.wave_speed + self.state.vmax))
+
     def advance(self, state: State, t_end: float, on_substep=None):
-        """Substep until state.time reaches t_end exactly; the last step is shortened to land on it."""
+        """Substep until state.time reaches t_end exactly; the last step is shortened to land on it. Then the
+        host State is made current and the blow-up check runs."""
         while state.time < t_end - 1e-12 * max(1.0, t_end):
             dt = min(self.step_size(), t_end - state.time)
             self.substep(state, dt)
@@ -165,13 +219,52 @@ class Solver:
                 on_substep(state, dt)
         self.check_energy(state)
 
-    # ---- diagnostics
+    # ---- start, and the host State
+    def start(self, state: State):
+        """Bind the solver to a fresh State: the materials' initial values, then the energy budget the runaway
+        check measures against [J] (what gravity over the domain's largest extent, the colliders' motion, the wind,
+        the pins and the initial motion can legitimately supply) and the speed of the first step's CFL bound."""
+        for i, kind in enumerate(self.kinds):
+            if kind.start is not None:
+                kind.start(self, state, i)
+        m = self.model
+        extent = float(np.max(np.asarray(m.grid_shape) - 1) * m.dx)
+        v_coll = float(np.abs(m.colliders[:, 10:13]).max()) if len(m.colliders) else 0.0
+        v_coll = max(v_coll, float(np.linalg.norm(m.wind_velocity)))  # the wind can bring material to its speed
+        v_coll = max(v_coll, pin_speed(m))  # so can a moving pin that drags its body along
+        mass = float(m.particle_mass.sum())
+        state.energy_budget = kinetic_energy(m.particle_mass, state.particle_v) + mass * (
+            np.linalg.norm(m.gravity) * extent + v_coll**2)
+        state.energy_budget += self.host_strain_energy(state) + 1e-12 * mass
+        state.energy_prev = state.energy_budget
+        # The first step's CFL bound sees the initial speeds: a body thrown at 10 dx / dt otherwise moved 10 cells in
+        # its first step.
+        v2 = np.einsum("ij,ij->i", state.particle_v, state.particle_v)
+        state.vmax = float(np.sqrt(v2.max())) if len(v2) else 0.0
+        self.bind(state)
+
+    def bind(self, state: State):
+        """Step this State from now on (after start, or after a checkpoint was restored into it): the backend
+        takes its arrays (the CUDA backend uploads them)."""
+        self.state = state
+        self.crack_index = (np.flatnonzero(state.particle_crack).astype(np.int64) if state.has("particle_crack")
+                            else np.zeros(0, np.int64))
+        self.backend.start(self, state)
+
+    def sync(self, state: State) -> State:
+        """The host State, current (the CUDA backend copies its arrays back)."""
+        self.backend.sync(state)
+        return state
+
+    # ---- diagnostics, on the host State
     def kinetic_energy(self, state: State) -> float:
+        self.sync(state)
         return kinetic_energy(self.model.particle_mass, state.particle_v)
 
     def angular_momentum(self, state: State, about) -> np.ndarray:
         """Total angular momentum [kg m^2/s]: particles plus the APIC affine part m_p (dx^2/3) eps_ijk C_kj,
         which APIC transfers conserve together (Jiang et al. 2015)."""
+        self.sync(state)
         m = self.model.particle_mass
         r = state.particle_x - np.asarray(about)
         lin = (m[:, None] * np.cross(r, state.particle_v)).sum(axis=0)
@@ -180,37 +273,25 @@ class Solver:
 
     def strain_energy(self, state: State) -> float:
         """Total strain energy of all bodies [J] (eq. 5 with the calibration)."""
-        self.fbar(state)
-        return sum(MATERIALS[b.model].energy(self.model, state, i) for i, b in enumerate(self.plan.bodies))
+        self.sync(state)
+        return self.host_strain_energy(state)
 
-    def start(self, state: State):
-        """Set the energy budget the runaway check measures against [J]: what gravity (over the domain's
-        largest extent), the colliders' motion (and the wind's and the pins') and the initial motion can
-        legitimately supply; and the speed the first step's CFL bound uses."""
-        for i, b in enumerate(self.plan.bodies):
-            if MATERIALS[b.model].init is not None:
-                MATERIALS[b.model].init(self.model, state, i)
+    def host_strain_energy(self, state: State) -> float:
+        """Strain energy from the host State's arrays, with Fbar recomputed there by the CPU kernel."""
         m = self.model
-        extent = float(np.max(np.asarray(self.plan.grid_nodes) - 1) * m.dx)
-        v_coll = float(np.abs(m.colliders[:, 10:13]).max()) if len(m.colliders) else 0.0
-        v_coll = max(v_coll, float(np.linalg.norm(m.wind_velocity)))  # the wind can bring material to its speed
-        v_coll = max(v_coll, pin_speed(m))  # so can a moving pin that drags its body along
-        mass = float(m.particle_mass.sum())
-        self.energy_budget = self.kinetic_energy(state) + mass * (np.linalg.norm(m.gravity) * extent + v_coll**2)
-        self.energy_budget += self.strain_energy(state) + 1e-12 * mass
-        self.energy_prev = self.energy_budget
-        # The first step's CFL bound sees the initial speeds: a body thrown at 10 dx / dt otherwise moved 10 cells in
-        # its first step (stability case impact_floor_10).
-        v2 = np.einsum("ij,ij->i", state.particle_v, state.particle_v)
-        self.vmax = float(np.sqrt(v2.max())) if len(v2) else 0.0
+        for i in self.fbar_bodies:
+            b = m.bodies[i]
+            averaged_deformation(b.start, b.end, state.particle_x, m.rest_x, state.bond_start, state.bond_nbr,
+                                 state.bond_wv, m.particle_Kinv, state.particle_Fbar, particle_chunks())
+        return sum(k.energy(self, state, i) for i, k in enumerate(self.kinds) if k.energy is not None)
 
     def check_energy(self, state: State):
         """Blow-up test, once per frame: kinetic energy may not exceed 10x the larger of the budget and the
         total (kinetic + strain) energy at the previous check. Pins and breaking bonds may legitimately turn
         stored energy into motion; they cannot multiply the total tenfold within one frame."""
         ke = self.kinetic_energy(state)
-        limit = RUNAWAY_FACTOR * max(self.energy_budget, self.energy_prev)
-        self.energy_prev = ke + self.strain_energy(state)
+        limit = RUNAWAY_FACTOR * max(state.energy_budget, state.energy_prev)
+        state.energy_prev = ke + self.host_strain_energy(state)
         if ke > limit:
             fastest = np.argsort(np.einsum("ij,ij->i", state.particle_v, state.particle_v))[-5:][::-1]
             raise SimulationError(
@@ -223,6 +304,7 @@ class Solver:
             )
 
     def fail_nonfinite(self, state: State):
+        self.sync(state)
         bad = np.flatnonzero(~np.isfinite(state.particle_x).all(axis=1) | ~np.isfinite(state.particle_v).all(axis=1))
         raise SimulationError(
             f"NaN or infinite values at step {state.step + 1} (t = {state.time:.6g} s) in {len(bad)} particles "
@@ -231,6 +313,7 @@ class Solver:
         )
 
     def fail_outside(self, state: State):
+        self.sync(state)
         m = self.model
         nodes = np.asarray(m.grid_shape)
         f = (state.particle_x - m.origin) / m.dx

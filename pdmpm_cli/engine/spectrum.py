@@ -1,4 +1,4 @@
-"""Predicted stability limit of the explicit step (issue 6): linear stability of the engine's own operators.
+"""Predicted stability limit of the explicit step: linear stability of the engine's own operators.
 
 Symplectic Euler, v += dt a(x), x += dt v, on a linear system a = -A u is stable for dt < 2 / omega_max with
 omega_max^2 the largest eigenvalue of A. Two systems step that way here:
@@ -23,9 +23,9 @@ import numpy as np
 from numba import njit
 from scipy.sparse.linalg import ArpackNoConvergence, LinearOperator, eigs
 
-from pdmpm_cli.engine.bspline import cubic_weights
 from pdmpm_cli.engine.colliders import BOX, CYLINDER, PLANE, SPHERE
-from pdmpm_cli.engine.transfer import WALL
+from pdmpm_cli.engine.state import State
+from pdmpm_cli.engine.transfer import WALL, stencil
 
 PROBE = 1e-7  # finite-difference displacement, in units of the smallest particle spacing [-]
 TOLERANCE = 1e-4  # relative accuracy of omega_max^2 asked of Arnoldi [-]
@@ -39,9 +39,7 @@ def stencils(x, origin, inv_dx, shape):
     weight = np.empty((n, 64))
     wx, wy, wz = np.empty(4), np.empty(4), np.empty(4)
     for p in range(n):
-        bx = cubic_weights((x[p, 0] - origin[0]) * inv_dx, wx)
-        by = cubic_weights((x[p, 1] - origin[1]) * inv_dx, wy)
-        bz = cubic_weights((x[p, 2] - origin[2]) * inv_dx, wz)
+        bx, by, bz = stencil(x, p, origin, inv_dx, wx, wy, wz)[3:]
         k = 0
         for i in range(4):
             for j in range(4):
@@ -89,29 +87,35 @@ class CriticalSteps:
 
 class _Stiffness:
     """f(x0 + eps u) - f(x0) by the engine's force phases, on a copy of the state whose per-particle and per-bond
-    arrays are reset before each probe (the viscoelastic forces are incremental). The grids and the families are
-    shared, not copied: the force phases never touch them."""
+    arrays are reset before each probe (the viscoelastic forces are incremental), stepped by a CPU Solver of its own.
+    The grids and the families are shared, not copied: the force phases never touch them."""
 
     SHARED = ("grid", "grid_private", "bond_start", "bond_nbr")
 
     def __init__(self, solver, state):
-        self.solver = solver
-        self.reset = [f.name for f in dataclasses.fields(state) if f.name not in self.SHARED
-                      and isinstance(getattr(state, f.name), np.ndarray) and getattr(state, f.name).size]
-        self.base = dataclasses.replace(state, **{name: getattr(state, name).copy() for name in self.reset})
-        self.work = dataclasses.replace(state, **{name: getattr(state, name).copy() for name in self.reset})
+        from pdmpm_cli.engine.backends.cpu import CpuBackend
+        from pdmpm_cli.engine.solver import Solver
+
+        state = solver.sync(state)
+        self.reset = [name for name in state.arrays if name not in self.SHARED]
+        self.base = self._copy(state)
+        self.work = self._copy(state)
+        self.probe = Solver(solver.model, solver.plan, CpuBackend())
+        self.probe.bind(self.work)
         self.x0 = state.particle_x.copy()
         self.eps = PROBE * float(np.min(solver.model.body_spacing))
         self.f0 = self.force(self.x0)
+
+    def _copy(self, state):
+        return State(state.declared, {n: (a if n in self.SHARED else a.copy()) for n, a in state.arrays.items()},
+                     **state.scalars)
 
     def force(self, x) -> np.ndarray:
         w = self.work
         for name in self.reset:
             np.copyto(getattr(w, name), getattr(self.base, name))
         w.particle_x[:] = x
-        self.solver.fbar(w)
-        for kind in self.solver.bodies_of:
-            self.solver.material_phase(w, "bonds", kind, 0.0)
+        self.probe.bond_forces(0.0)
         return w.particle_force.copy()
 
     def apply(self, u) -> np.ndarray:

@@ -1,8 +1,10 @@
 """MPM transfers (paper section 3, steps 1, 3-6): P2G, grid update with colliders, G2P with APIC.
 
-The grid is dense over the domain, but each step touches only the node box around the particles.
-P2G scatters into one private grid per thread (fixed particle chunks, fixed reduction order), so the
-result does not depend on thread timing: runs are bitwise reproducible for a given thread count.
+Each transfer is a per-particle (or per-node) formula, `*_at`, that both backends run: the CPU loops below, and
+the CUDA backend one thread per item (engine/backends/cuda.py). The grid is dense over the domain, but each step
+touches only the node box around the particles. On the CPU, P2G scatters into one private grid per thread (fixed
+particle chunks, fixed reduction order), so runs are bitwise reproducible for a given thread count; on the GPU it
+adds into the one grid with atomics (`scatter_node` becomes an atomic add there).
 """
 
 import math
@@ -10,7 +12,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from pdmpm_cli.engine.bspline import cubic_weights
+from pdmpm_cli.engine.bspline import cubic_weights, cubic_weights_grad
 from pdmpm_cli.engine.colliders import collide_all, push_out, respond
 
 WALL = 3  # nodes within this many cells of the domain edge act as walls; particles stay >= 1 cell inside
@@ -30,6 +32,35 @@ def stencil_on_grid(fx, fy, fz, grid):
     """Whether the 4 x 4 x 4 B-spline stencil of a particle at (fx, fy, fz) (in cells) lies on the grid."""
     return fx >= 1.0 and fy >= 1.0 and fz >= 1.0 and fx < grid.shape[0] - 3 and fy < grid.shape[1] - 3 \
         and fz < grid.shape[2] - 3
+
+
+@njit(cache=True, inline="always")
+def stencil(particle_x, p, origin, inv_dx, wx, wy, wz):
+    """Particle p's position in cells (fx, fy, fz) and the first node (bx, by, bz) of its 4 x 4 x 4 cubic B-spline
+    stencil, with the weights per axis in wx, wy, wz (the one definition of the stencil every transfer uses)."""
+    fx = (particle_x[p, 0] - origin[0]) * inv_dx
+    fy = (particle_x[p, 1] - origin[1]) * inv_dx
+    fz = (particle_x[p, 2] - origin[2]) * inv_dx
+    return fx, fy, fz, cubic_weights(fx, wx), cubic_weights(fy, wy), cubic_weights(fz, wz)
+
+
+@njit(cache=True, inline="always")
+def stencil_with_gradients(particle_x, p, origin, inv_dx, wx, wy, wz, gx, gy, gz):
+    """`stencil`, with the weights' derivatives per axis (per cell) in gx, gy, gz."""
+    fx = (particle_x[p, 0] - origin[0]) * inv_dx
+    fy = (particle_x[p, 1] - origin[1]) * inv_dx
+    fz = (particle_x[p, 2] - origin[2]) * inv_dx
+    return (fx, fy, fz, cubic_weights_grad(fx, wx, gx), cubic_weights_grad(fy, wy, gy),
+            cubic_weights_grad(fz, wz, gz))
+
+
+@njit(cache=True, inline="always")
+def scatter_node(g, i, j, k, m, p0, p1, p2):
+    """g[i, j, k] += (m, p): on the CPU into the thread's private grid; the CUDA backend swaps in atomic adds."""
+    g[i, j, k, 0] += m
+    g[i, j, k, 1] += p0
+    g[i, j, k, 2] += p1
+    g[i, j, k, 3] += p2
 
 
 @njit(parallel=True, cache=True)
@@ -52,20 +83,54 @@ def position_bounds(particle_x, chunks):
     return out_lo, out_hi
 
 
-@njit(parallel=True, cache=True)
-def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt, origin,
-        inv_dx, box, grid_private, grid):
-    """P2G of mass, APIC momentum and dt * bond force (eq. 7: f_I = sum_p N_I(x_p) f_p) -> grid.
+@njit(cache=True)
+def p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt, origin,
+           inv_dx, g, wx, wy, wz):
+    """P2G of particle p: mass, APIC momentum and dt * bond force (eq. 7: f_I = sum_p N_I(x_p) f_p) -> g.
+    Returns 1 if its stencil is off the grid (it then scatters nothing), else 0.
 
     Crack-surface particles (particle_crack = 1; the array is empty without fracture) stay off the grid:
     they have their own integrator (section 6). Pinned particles bring their prescribed momentum but not their
-    bond force: that force is the grip's reaction, and scattering it would pull their free neighbours.
-    Returns the number of particles outside the valid domain."""
-    has_crack = particle_crack.shape[0] > 0
-    has_pins = pin_mask.shape[0] > 0
+    bond force: that force is the grip's reaction, and scattering it would pull their free neighbours."""
+    if particle_crack.shape[0] > 0 and particle_crack[p] != 0:
+        return 0
+    fx, fy, fz, bx, by, bz = stencil(particle_x, p, origin, inv_dx, wx, wy, wz)
+    if not stencil_on_grid(fx, fy, fz, g):
+        return 1
+    dx = 1.0 / inv_dx
+    m = particle_mass[p]
+    fdt = 0.0 if pin_mask.shape[0] > 0 and pin_mask[p] != 0 else dt
+    # Node momentum m (v + C (x_i - x_p)) + dt f, built up axis by axis: the affine part of axis 0 is added once
+    # per i, of axis 1 once per j, so the innermost loop does four multiply-adds per node.
+    p0 = m * particle_v[p, 0] + fdt * particle_force[p, 0]
+    p1 = m * particle_v[p, 1] + fdt * particle_force[p, 1]
+    p2 = m * particle_v[p, 2] + fdt * particle_force[p, 2]
+    c00, c01, c02 = m * particle_C[p, 0, 0], m * particle_C[p, 0, 1], m * particle_C[p, 0, 2]
+    c10, c11, c12 = m * particle_C[p, 1, 0], m * particle_C[p, 1, 1], m * particle_C[p, 1, 2]
+    c20, c21, c22 = m * particle_C[p, 2, 0], m * particle_C[p, 2, 1], m * particle_C[p, 2, 2]
+    for i in range(4):
+        d0 = (bx + i - fx) * dx
+        q0, q1, q2 = p0 + c00 * d0, p1 + c10 * d0, p2 + c20 * d0
+        for j in range(4):
+            d1 = (by + j - fy) * dx
+            r0, r1, r2 = q0 + c01 * d1, q1 + c11 * d1, q2 + c21 * d1
+            wij = wx[i] * wy[j]
+            for k in range(4):
+                d2 = (bz + k - fz) * dx
+                w = wij * wz[k]
+                scatter_node(g, bx + i, by + j, bz + k, w * m, w * (r0 + c02 * d2), w * (r1 + c12 * d2),
+                             w * (r2 + c22 * d2))
+    return 0
+
+
+@njit(parallel=True, cache=True)
+def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt, origin,
+        inv_dx, box, grid_private, grid):
+    """`p2g_at` for every particle -> grid: thread t scatters a fixed particle range into grid_private[t] (cleared
+    on the node box), then the private grids are summed in thread order. Returns the number of particles off the
+    grid."""
     nt = grid_private.shape[0]
     n = particle_x.shape[0]
-    dx = 1.0 / inv_dx
     outside = 0
     for t in prange(nt):
         g = grid_private[t]
@@ -74,43 +139,8 @@ def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, parti
         wy = np.empty(4)
         wz = np.empty(4)
         for p in range(t * n // nt, (t + 1) * n // nt):
-            if has_crack and particle_crack[p]:
-                continue
-            fx = (particle_x[p, 0] - origin[0]) * inv_dx
-            fy = (particle_x[p, 1] - origin[1]) * inv_dx
-            fz = (particle_x[p, 2] - origin[2]) * inv_dx
-            if not stencil_on_grid(fx, fy, fz, grid):
-                outside += 1
-                continue
-            bx = cubic_weights(fx, wx)
-            by = cubic_weights(fy, wy)
-            bz = cubic_weights(fz, wz)
-            m = particle_mass[p]
-            fdt = 0.0 if has_pins and pin_mask[p] else dt
-            # Node momentum m (v + C (x_i - x_p)) + dt f, built up axis by axis: the affine part of axis 0 is
-            # added once per i, of axis 1 once per j, so the innermost loop does four multiply-adds per node.
-            # Node momentum m (v + C (x_i - x_p)) + dt f, built up axis by axis: the affine part of axis 0 is
-            # added once per i, of axis 1 once per j, so the innermost loop does four multiply-adds per node.
-            p0 = m * particle_v[p, 0] + fdt * particle_force[p, 0]
-            p1 = m * particle_v[p, 1] + fdt * particle_force[p, 1]
-            p2 = m * particle_v[p, 2] + fdt * particle_force[p, 2]
-            c00, c01, c02 = m * particle_C[p, 0, 0], m * particle_C[p, 0, 1], m * particle_C[p, 0, 2]
-            c10, c11, c12 = m * particle_C[p, 1, 0], m * particle_C[p, 1, 1], m * particle_C[p, 1, 2]
-            c20, c21, c22 = m * particle_C[p, 2, 0], m * particle_C[p, 2, 1], m * particle_C[p, 2, 2]
-            for i in range(4):
-                d0 = (bx + i - fx) * dx
-                q0, q1, q2 = p0 + c00 * d0, p1 + c10 * d0, p2 + c20 * d0
-                for j in range(4):
-                    d1 = (by + j - fy) * dx
-                    r0, r1, r2 = q0 + c01 * d1, q1 + c11 * d1, q2 + c21 * d1
-                    wij = wx[i] * wy[j]
-                    for k in range(4):
-                        d2 = (bz + k - fz) * dx
-                        w = wij * wz[k]
-                        g[bx + i, by + j, bz + k, 0] += w * m
-                        g[bx + i, by + j, bz + k, 1] += w * (r0 + c02 * d2)
-                        g[bx + i, by + j, bz + k, 2] += w * (r1 + c12 * d2)
-                        g[bx + i, by + j, bz + k, 3] += w * (r2 + c22 * d2)
+            outside += p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack,
+                              pin_mask, dt, origin, inv_dx, g, wx, wy, wz)
     for i in prange(box[0], box[1]):
         for j in range(box[2], box[3]):
             for k in range(box[4], box[5]):
@@ -122,59 +152,138 @@ def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, parti
     return outside
 
 
+@njit(cache=True)
+def grid_node_update(i, j, k, grid, dt, gravity, wind, drag, origin, dx, t_new, colliders, wall_boundary,
+                     wall_friction, v, nrm):
+    """Node (i, j, k): momentum -> velocity, v_I += dt g (step 3) and the wind's drag towards `wind` at rate
+    `drag` (implicit, stable for any dt), domain walls and colliders (step 4); in place."""
+    m = grid[i, j, k, 0]
+    if m <= 0.0:
+        return
+    relax = 1.0 / (1.0 + dt * drag)
+    for a in range(3):
+        v[a] = (grid[i, j, k, 1 + a] / m + dt * (gravity[a] + drag * wind[a])) * relax
+    for a in range(3):
+        idx = i if a == 0 else (j if a == 1 else k)
+        hi = (grid.shape[0] if a == 0 else (grid.shape[1] if a == 1 else grid.shape[2])) - 1 - WALL
+        side = 1.0 if idx < WALL else (-1.0 if idx > hi else 0.0)
+        if side != 0.0:
+            nrm[0], nrm[1], nrm[2] = 0.0, 0.0, 0.0
+            nrm[a] = side
+            respond(v, 0.0, 0.0, 0.0, nrm, wall_boundary, wall_friction)
+    if colliders.shape[0]:
+        collide_all(colliders, origin[0] + i * dx, origin[1] + j * dx, origin[2] + k * dx, t_new, v, nrm)
+    grid[i, j, k, 1], grid[i, j, k, 2], grid[i, j, k, 3] = v[0], v[1], v[2]
+
+
 @njit(parallel=True, cache=True)
 def grid_update(grid, dt, gravity, wind, drag, origin, dx, box, t_new, colliders, wall_boundary, wall_friction):
-    """Grid momentum -> velocity, v_I += dt g (step 3) and the wind's drag towards `wind` at rate `drag`
-    (implicit, stable for any dt), domain walls and colliders (step 4); in place."""
-    relax = 1.0 / (1.0 + dt * drag)
-    nx, ny, nz = grid.shape[0], grid.shape[1], grid.shape[2]
-    hi = (nx - 1 - WALL, ny - 1 - WALL, nz - 1 - WALL)
+    """`grid_node_update` on every node of the box."""
     for i in prange(box[0], box[1]):
         v = np.empty(3)
         nrm = np.empty(3)
         for j in range(box[2], box[3]):
             for k in range(box[4], box[5]):
-                node = grid[i, j, k]
-                m = node[0]
-                if m <= 0.0:
-                    continue
-                for a in range(3):
-                    v[a] = (node[1 + a] / m + dt * (gravity[a] + drag * wind[a])) * relax
-                idx = (i, j, k)
-                for a in range(3):
-                    side = 1.0 if idx[a] < WALL else (-1.0 if idx[a] > hi[a] else 0.0)
-                    if side != 0.0:
-                        nrm[0], nrm[1], nrm[2] = 0.0, 0.0, 0.0
-                        nrm[a] = side
-                        respond(v, 0.0, 0.0, 0.0, nrm, wall_boundary, wall_friction)
-                if colliders.shape[0]:
-                    collide_all(colliders, origin[0] + i * dx, origin[1] + j * dx, origin[2] + k * dx,
-                                t_new, v, nrm)
-                node[1], node[2], node[3] = v[0], v[1], v[2]
+                grid_node_update(i, j, k, grid, dt, gravity, wind, drag, origin, dx, t_new, colliders,
+                                 wall_boundary, wall_friction, v, nrm)
 
 
 @njit(cache=True, inline="always")
 def pin_share(stop, t_new, dt):
     """Share of the step t_new - dt .. t_new a pin that stops at `stop` still moves: its particles then travel
     velocity * stop exactly, whatever the steps (1 for a pin that never stops, stop = inf). Branches, not the
-    builtin min and max, which numba 0.68's CUDA target cannot compile (cuda.kernels compiles this too)."""
+    builtin min and max, which numba 0.68's CUDA target cannot compile."""
     share = (stop - (t_new - dt)) / dt
     if share >= 1.0:
         return 1.0
     return share if share > 0.0 else 0.0
 
 
+@njit(cache=True)
+def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, particle_crack,
+           particle_x, particle_v, particle_C, wx, wy, wz, v, nrm):
+    """G2P of particle p: velocity and APIC affine matrix (step 5), pins, particle collisions (step 6), advection.
+    Returns its speed, -1 when it is not finite, 0 for a crack-surface particle (left to its own integrator)."""
+    if particle_crack.shape[0] > 0 and particle_crack[p] != 0:
+        return 0.0
+    dx = 1.0 / inv_dx
+    scale = 3.0 * inv_dx * inv_dx  # D_p^-1 for cubic B-splines (Jiang et al. 2015)
+    fx, fy, fz, bx, by, bz = stencil(particle_x, p, origin, inv_dx, wx, wy, wz)
+    # The sums over the 64 nodes of w u and w u (x_i - x_p) factor axis by axis (w = wx wy wz, and each component
+    # of x_i - x_p depends on one axis): sum over k first, then j, then i.
+    v0 = v1 = v2 = 0.0
+    b00 = b01 = b02 = b10 = b11 = b12 = b20 = b21 = b22 = 0.0
+    for i in range(4):
+        d0 = (bx + i - fx) * dx
+        t0 = t1 = t2 = 0.0  # sum_jk wy wz u
+        s0 = s1 = s2 = 0.0  # sum_jk wy wz u d1
+        z0 = z1 = z2 = 0.0  # sum_jk wy wz u d2
+        for j in range(4):
+            d1 = (by + j - fy) * dx
+            k0 = k1 = k2 = 0.0  # sum_k wz u
+            e0 = e1 = e2 = 0.0  # sum_k wz u d2
+            for k in range(4):
+                d2 = (bz + k - fz) * dx
+                w = wz[k]
+                u0 = w * grid[bx + i, by + j, bz + k, 1]
+                u1 = w * grid[bx + i, by + j, bz + k, 2]
+                u2 = w * grid[bx + i, by + j, bz + k, 3]
+                k0 += u0
+                k1 += u1
+                k2 += u2
+                e0 += u0 * d2
+                e1 += u1 * d2
+                e2 += u2 * d2
+            w = wy[j]
+            t0 += w * k0
+            t1 += w * k1
+            t2 += w * k2
+            s0 += w * d1 * k0
+            s1 += w * d1 * k1
+            s2 += w * d1 * k2
+            z0 += w * e0
+            z1 += w * e1
+            z2 += w * e2
+        w = wx[i]
+        v0 += w * t0
+        v1 += w * t1
+        v2 += w * t2
+        b00 += w * d0 * t0
+        b10 += w * d0 * t1
+        b20 += w * d0 * t2
+        b01 += w * s0
+        b11 += w * s1
+        b21 += w * s2
+        b02 += w * z0
+        b12 += w * z1
+        b22 += w * z2
+    pinned = pin_mask.shape[0] > 0 and pin_mask[p] != 0
+    if pinned:
+        share = pin_share(pin_stop[p], t_new, dt)
+        v0, v1, v2 = share * pin_velocity[p, 0], share * pin_velocity[p, 1], share * pin_velocity[p, 2]
+        b00 = b01 = b02 = b10 = b11 = b12 = b20 = b21 = b22 = 0.0
+    elif colliders.shape[0]:
+        v[0], v[1], v[2] = v0, v1, v2
+        collide_all(colliders, particle_x[p, 0], particle_x[p, 1], particle_x[p, 2], t_new, v, nrm)
+        v0, v1, v2 = v[0], v[1], v[2]
+    particle_v[p, 0], particle_v[p, 1], particle_v[p, 2] = v0, v1, v2
+    particle_x[p, 0] += dt * v0
+    particle_x[p, 1] += dt * v1
+    particle_x[p, 2] += dt * v2
+    particle_C[p, 0, 0], particle_C[p, 0, 1], particle_C[p, 0, 2] = b00 * scale, b01 * scale, b02 * scale
+    particle_C[p, 1, 0], particle_C[p, 1, 1], particle_C[p, 1, 2] = b10 * scale, b11 * scale, b12 * scale
+    particle_C[p, 2, 0], particle_C[p, 2, 1], particle_C[p, 2, 2] = b20 * scale, b21 * scale, b22 * scale
+    if colliders.shape[0] and not pinned:
+        push_out(colliders, particle_x[p], t_new, nrm)
+    return particle_speed(v0, v1, v2, particle_x, p)
+
+
 @njit(parallel=True, cache=True)
 def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, particle_crack, particle_x,
         particle_v, particle_C, chunks):
-    """G2P velocity and APIC affine matrix (step 5), pins, particle collisions (step 6), advection; crack-surface
-    particles are left to their own integrator. Particles go in `chunks` static chunks, each with its own
-    scratch. Returns (max particle speed, number of non-finite particles)."""
+    """`g2p_at` for every particle, in `chunks` static chunks, each with its own scratch. Returns (max particle
+    speed, number of non-finite particles)."""
     n = particle_x.shape[0]
-    has_pins = pin_mask.shape[0] > 0
-    has_crack = particle_crack.shape[0] > 0
-    dx = 1.0 / inv_dx
-    scale = 3.0 * inv_dx * inv_dx  # D_p^-1 for cubic B-splines (Jiang et al. 2015)
     chunk_vmax = np.zeros(chunks)
     chunk_bad = np.zeros(chunks, dtype=np.int64)
     for t in prange(chunks):
@@ -184,81 +293,8 @@ def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_
         v = np.empty(3)
         nrm = np.empty(3)
         for p in range(t * n // chunks, (t + 1) * n // chunks):
-            if has_crack and particle_crack[p]:
-                continue
-            fx = (particle_x[p, 0] - origin[0]) * inv_dx
-            fy = (particle_x[p, 1] - origin[1]) * inv_dx
-            fz = (particle_x[p, 2] - origin[2]) * inv_dx
-            bx = cubic_weights(fx, wx)
-            by = cubic_weights(fy, wy)
-            bz = cubic_weights(fz, wz)
-            # The sums over the 64 nodes of w u and w u (x_i - x_p) factor axis by axis (w = wx wy wz, and each
-            # component of x_i - x_p depends on one axis): sum over k first, then j, then i.
-            v0 = v1 = v2 = 0.0
-            b00 = b01 = b02 = b10 = b11 = b12 = b20 = b21 = b22 = 0.0
-            for i in range(4):
-                d0 = (bx + i - fx) * dx
-                t0 = t1 = t2 = 0.0  # sum_jk wy wz u
-                s0 = s1 = s2 = 0.0  # sum_jk wy wz u d1
-                z0 = z1 = z2 = 0.0  # sum_jk wy wz u d2
-                for j in range(4):
-                    d1 = (by + j - fy) * dx
-                    k0 = k1 = k2 = 0.0  # sum_k wz u
-                    e0 = e1 = e2 = 0.0  # sum_k wz u d2
-                    for k in range(4):
-                        d2 = (bz + k - fz) * dx
-                        w = wz[k]
-                        u0 = w * grid[bx + i, by + j, bz + k, 1]
-                        u1 = w * grid[bx + i, by + j, bz + k, 2]
-                        u2 = w * grid[bx + i, by + j, bz + k, 3]
-                        k0 += u0
-                        k1 += u1
-                        k2 += u2
-                        e0 += u0 * d2
-                        e1 += u1 * d2
-                        e2 += u2 * d2
-                    w = wy[j]
-                    t0 += w * k0
-                    t1 += w * k1
-                    t2 += w * k2
-                    s0 += w * d1 * k0
-                    s1 += w * d1 * k1
-                    s2 += w * d1 * k2
-                    z0 += w * e0
-                    z1 += w * e1
-                    z2 += w * e2
-                w = wx[i]
-                v0 += w * t0
-                v1 += w * t1
-                v2 += w * t2
-                b00 += w * d0 * t0
-                b10 += w * d0 * t1
-                b20 += w * d0 * t2
-                b01 += w * s0
-                b11 += w * s1
-                b21 += w * s2
-                b02 += w * z0
-                b12 += w * z1
-                b22 += w * z2
-            pinned = has_pins and pin_mask[p]
-            if pinned:
-                share = pin_share(pin_stop[p], t_new, dt)
-                v0, v1, v2 = share * pin_velocity[p, 0], share * pin_velocity[p, 1], share * pin_velocity[p, 2]
-                b00 = b01 = b02 = b10 = b11 = b12 = b20 = b21 = b22 = 0.0
-            elif colliders.shape[0]:
-                v[0], v[1], v[2] = v0, v1, v2
-                collide_all(colliders, particle_x[p, 0], particle_x[p, 1], particle_x[p, 2], t_new, v, nrm)
-                v0, v1, v2 = v[0], v[1], v[2]
-            particle_v[p, 0], particle_v[p, 1], particle_v[p, 2] = v0, v1, v2
-            particle_x[p, 0] += dt * v0
-            particle_x[p, 1] += dt * v1
-            particle_x[p, 2] += dt * v2
-            particle_C[p, 0, 0], particle_C[p, 0, 1], particle_C[p, 0, 2] = b00 * scale, b01 * scale, b02 * scale
-            particle_C[p, 1, 0], particle_C[p, 1, 1], particle_C[p, 1, 2] = b10 * scale, b11 * scale, b12 * scale
-            particle_C[p, 2, 0], particle_C[p, 2, 1], particle_C[p, 2, 2] = b20 * scale, b21 * scale, b22 * scale
-            if colliders.shape[0] and not pinned:
-                push_out(colliders, particle_x[p], t_new, nrm)
-            s = particle_speed(v0, v1, v2, particle_x, p)
+            s = g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop,
+                       particle_crack, particle_x, particle_v, particle_C, wx, wy, wz, v, nrm)
             if s < 0.0:
                 chunk_bad[t] += 1
             else:

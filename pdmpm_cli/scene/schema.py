@@ -9,15 +9,10 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 
-Vec3 = tuple[float, float, float]
-
-
-class Strict(BaseModel):
-    """Base for every scene model: immutable, unknown keys rejected."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
+from pdmpm_cli.engine.materials import MATERIALS
+from pdmpm_cli.spec import Strict, Vec3
 
 
 # ---------------------------------------------------------------- shapes
@@ -173,78 +168,8 @@ Geometry = Annotated[Union[CloudGeometry, ShellGeometry, VoronoiGeometry], Field
 # ---------------------------------------------------------------- materials
 
 
-class ElasticMaterial(Strict):
-    """Elastic peridynamic bonds (paper eqs. 5-7). See docs/method.md for the calibration to E and nu."""
-
-    model: Literal["elastic"]
-    density: float = Field(gt=0, description="Mass density rho [kg/m^3].")
-    lam: float = Field(ge=0, description="Lame's first parameter lambda: isotropic (bond-stretch) term [Pa].")
-    mu: float = Field(ge=0, description="Shear modulus mu: deviatoric (averaged-deformation) term [Pa].")
-
-    @model_validator(mode="after")
-    def _stiff(self):
-        if self.lam + 2 * self.mu <= 0:
-            raise ValueError("lam + 2 mu must be positive: a material with no stiffness cannot hold its shape")
-        return self
-
-
-ELASTIC_PSI = 1e20  # psi_p at or above this means the bonds never yield (Table 1 writes 1e25 for "elastic")
-
-
-class PlasticMaterial(ElasticMaterial):
-    """Elastic bonds with per-bond deviatoric plasticity (paper eqs. 8-11, docs/method.md 'Plastic bonds').
-
-    Give either the paper's yield parameter `psi_p` or a physical `yield_stress` (then psi_p = sigma_y^2 / 2:
-    a bar in uniaxial tension starts to yield at sigma_y)."""
-
-    model: Literal["plastic"]
-    psi_p: float | None = Field(
-        None, gt=0, description="Yield parameter psi_p of eq. 10: a bond yields when E_dev^2 / 2 > psi_p, with the "
-        "bond's deviatoric stress E_dev = (lam + 2 mu)(e_dev - e_p) [Pa^2]. At or above 1e20 the body is elastic "
-        "and the plastic pass is left out.",
-    )
-    yield_stress: float | None = Field(
-        None, gt=0, description="Uniaxial yield stress sigma_y, an alternative to psi_p (psi_p = sigma_y^2 / 2) [Pa].",
-    )
-
-    @model_validator(mode="after")
-    def _one_yield(self):
-        if (self.psi_p is None) == (self.yield_stress is None):
-            raise ValueError("give exactly one of psi_p (the paper's yield parameter, Pa^2) or yield_stress (Pa)")
-        return self
-
-    @property
-    def yield_psi(self) -> float:
-        """psi_p [Pa^2], from whichever of psi_p and yield_stress was given."""
-        return self.psi_p if self.psi_p is not None else 0.5 * self.yield_stress**2
-
-
-class ViscoelasticMaterial(Strict):
-    """Linearised peridynamics (paper section 5, eqs. 12-20) with standard-linear-solid relaxation.
-
-    Each step the previous configuration is the reference: the bond force grows by the linear peridynamic
-    solid response to the step's increment. The bulk part and (1 - relaxing_fraction) of the deviatoric part
-    are kept; relaxing_fraction of it decays with relaxation_time. Shear viscosity ~ relaxing_fraction mu tau."""
-
-    model: Literal["viscoelastic"]
-    density: float = Field(gt=0, description="Mass density rho [kg/m^3].")
-    lam: float = Field(ge=0, description="Lame's first parameter lambda; bulk modulus K = lam + 2 mu / 3 [Pa].")
-    mu: float = Field(gt=0, description="Instantaneous shear modulus mu [Pa].")
-    relaxation_time: float = Field(
-        gt=0, description="Relaxation time tau of the relaxing deviatoric part (honey short, cream longer) [s].")
-    relaxing_fraction: float = Field(
-        1.0, ge=0, le=1, description="Fraction l of the deviatoric response that relaxes: 1 flows like a fluid "
-        "(honey), < 1 keeps some shape until bonds break (whipped cream) [-].")
-    break_stretch: float | None = Field(
-        None, gt=0, description="Bonds stretched beyond this strain from their formation length break (Table 1: "
-        "0.0304 honey, 0.035 cream); families are rebuilt from current neighbours so streams merge and split. "
-        "None: bonds never break [-].")
-    rebuild_distance: float = Field(
-        0.5, gt=0, le=2, description="Families are rebuilt when some particle has moved this multiple of the "
-        "particle spacing, relative to the body's mean motion, since the last rebuild [-].")
-
-
-Material = Annotated[Union[ElasticMaterial, PlasticMaterial, ViscoelasticMaterial], Field(discriminator="model")]
+# Each material's section is its own module's Schema (engine/materials); the registry lists them.
+Material = Annotated[Union[tuple(kind.schema for kind in MATERIALS.values())], Field(discriminator="model")]
 
 
 class Fracture(Strict):
@@ -434,8 +359,9 @@ class Grid(Strict):
         return self
 
 
-FieldName = Literal["particle_v", "particle_speed", "particle_C", "particle_force", "particle_Fbar",
-                    "particle_damage", "particle_plastic_strain"]
+# Per-frame fields: the engine's, and those the registered materials compute (plastic strain, ...).
+FieldName = Literal[("particle_v", "particle_speed", "particle_C", "particle_force", "particle_Fbar", "particle_damage",
+                     *(name for kind in MATERIALS.values() for name in kind.outputs))]
 
 
 class Output(Strict):

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pdmpm_cli.engine.model import State
+from pdmpm_cli.engine.state import State
 from pdmpm_cli.engine.solver import Solver
 from pdmpm_cli.io.atomic import atomic_write_text
 from pdmpm_cli.runner import Prepared, prepare, start_in_memory

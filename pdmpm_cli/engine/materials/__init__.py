@@ -1,61 +1,44 @@
-"""Material registry: scene `model` name -> the phases, arrays and constants of that material.
+"""Material registry: the scene's `model:` name -> its MaterialKind (materials/base.py).
 
-Adding a material means one module with its kernels and one entry here. A material contributes phases
-named `<phase>:<model>` that the solver runs for each body of that kind, in the order listed, before the
-MPM transfers; `bonds` is the force pass. The solver and the Plan never branch on material types.
+Adding a material means one module (its schema, parameters, arrays, kernels and hooks, ending in `KIND`) and one
+entry in BUILTIN. Modules named in the environment variable PDMPM_MATERIALS (comma-separated import paths, each
+with a `KIND`) are registered too: a material can live outside this package (the tests' linear spring does).
 """
 
-from dataclasses import dataclass, field
-from typing import Callable
+import importlib
+import os
 
 from pdmpm_cli.engine.materials import elastic, plastic, viscoelastic
-from pdmpm_cli.scene.schema import ELASTIC_PSI
+from pdmpm_cli.engine.materials.base import MaterialKind
+
+BUILTIN = (elastic.KIND, plastic.KIND, viscoelastic.KIND)
 
 
-@dataclass(frozen=True)
-class MaterialKind:
-    phases: dict[str, Callable]  # phase name -> fn(model, state, body, dt); "bonds" writes state.particle_force
-    energy: Callable  # fn(model, state, body) -> stored strain energy [J]
-    effective_constants: Callable  # fn(lam, mu, density) -> dict of effective isotropic constants
-    needs_fbar: Callable  # fn(material) -> whether the averaged deformation Fbar (eq. 4) is needed
-    bond_fields: dict[str, str] = field(default_factory=dict)  # per-bond state arrays: name -> dtype
-    particle_fields: dict[str, tuple] = field(default_factory=dict)  # name -> (trailing shape, dtype)
-    init: Callable | None = None  # fn(model, state, body): initial values of the material's state arrays
-    pair_forces: bool = False  # the bond pass is elastic.py's pair pass: per-thread force arrays, bond_wv, bond_inv_len
+def _registry() -> dict[str, MaterialKind]:
+    kinds = list(BUILTIN)
+    for name in filter(None, (s.strip() for s in os.environ.get("PDMPM_MATERIALS", "").split(","))):
+        kinds.append(importlib.import_module(name).KIND)
+    return {k.name: k for k in kinds}
 
 
-MATERIALS: dict[str, MaterialKind] = {
-    "elastic": MaterialKind(
-        phases={"bonds": elastic.forces},
-        energy=elastic.energy,
-        effective_constants=elastic.effective_constants,
-        needs_fbar=lambda mat: mat.mu > 0,
-        pair_forces=True,
-    ),
-    "plastic": MaterialKind(
-        phases={"return_map": plastic.return_map, "bonds": elastic.forces},
-        energy=elastic.energy,
-        effective_constants=elastic.effective_constants,
-        needs_fbar=lambda mat: mat.mu > 0,
-        bond_fields={"bond_ep": "f8"},
-        particle_fields={"particle_theta": ((), "f8")},
-        pair_forces=True,
-    ),
-    "viscoelastic": MaterialKind(
-        phases={"families": viscoelastic.refresh_families, "bonds": viscoelastic.forces},
-        energy=viscoelastic.energy,
-        effective_constants=viscoelastic.effective_constants,
-        needs_fbar=lambda mat: False,
-        bond_fields={"bond_len0": "f8", "bond_force_el": "f8", "bond_force_visc": "f8"},
-        particle_fields={"particle_m": ((), "f8"), "particle_dtheta": ((), "f8"), "particle_x_prev": ((3,), "f8"),
-                         "particle_x_rebuild": ((3,), "f8")},
-        init=viscoelastic.init_state,
-    ),
-}
+MATERIALS: dict[str, MaterialKind] = _registry()
 
 
-def kind_of(material) -> str:
-    """The registry entry a body runs: a plastic body that can never yield (psi_p >= 1e20) runs as elastic."""
-    if material.model == "plastic" and material.yield_psi >= ELASTIC_PSI:
-        return "elastic"
-    return material.model
+def kind_of(section) -> str:
+    """The registry entry a body runs (a plastic body that can never yield runs as elastic)."""
+    kind = MATERIALS[section.model]
+    return kind.runs_as(section) if kind.runs_as else kind.name
+
+
+
+def declared_fields() -> dict:
+    """Every array the engine or a registered material declares, by name (engine.fields.Field)."""
+    from pdmpm_cli.engine import fields
+
+    out = {f.name: f for f in fields.CORE + fields.GRIDS + fields.FBAR + fields.PAIR + fields.FRACTURE
+                                  + fields.FRACTURE_CELLS}
+    for kind in MATERIALS.values():
+        for f in kind.fields:
+            if out.setdefault(f.name, f) != f:
+                raise ValueError(f"material {kind.name} declares {f.name} differently from another declaration")
+    return out

@@ -19,14 +19,48 @@ when no body of the scene needs them: then e_p = 0 and every bond is intact.
 """
 
 import math
+from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from numba import njit, prange
+from pydantic import Field as Doc, model_validator
 
-from pdmpm_cli.engine.bonds import bond_vector, chunk_width
+from pdmpm_cli.engine import fields
+from pdmpm_cli.engine.bonds import bond_vector, chunk_width, influence
+from pdmpm_cli.engine.kernel import Kernel
+from pdmpm_cli.engine.materials.base import MaterialKind
 from pdmpm_cli.engine.parallel import VECTOR_MATH
+from pdmpm_cli.spec import Strict
 
 TINY = 1e-300  # floor of a squared bond length: a zero-length bond gets a finite coefficient times a zero vector
+
+
+class Schema(Strict):
+    """Elastic peridynamic bonds (paper eqs. 5-7). See docs/method.md for the calibration to E and nu."""
+
+    model: Literal["elastic"]
+    density: float = Doc(gt=0, description="Mass density rho [kg/m^3].")
+    lam: float = Doc(ge=0, description="Lame's first parameter lambda: isotropic (bond-stretch) term [Pa].")
+    mu: float = Doc(ge=0, description="Shear modulus mu: deviatoric (averaged-deformation) term [Pa].")
+
+    @model_validator(mode="after")
+    def _stiff(self):
+        if self.lam + 2 * self.mu <= 0:
+            raise ValueError("lam + 2 mu must be positive: a material with no stiffness cannot hold its shape")
+        return self
+
+
+@dataclass(frozen=True)
+class Params:
+    density: float  # [kg/m^3]
+    lam: float  # [Pa]
+    mu: float  # [Pa]
+    psi: float = math.inf  # yield parameter psi_p [Pa^2] (plastic bodies; inf: never yields)
+
+
+def params(section) -> Params:
+    return Params(section.density, section.lam, section.mu)
 
 
 @njit(cache=True, inline="always")
@@ -36,6 +70,26 @@ def averaged_bond(fbar, x0, x1, x2):
     y1 = fbar[1, 0] * x0 + fbar[1, 1] * x1 + fbar[1, 2] * x2
     y2 = fbar[2, 0] * x0 + fbar[2, 1] * x1 + fbar[2, 2] * x2
     return y0, y1, y2, math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
+
+
+@njit(cache=True, inline="always")
+def pair_force(has_mu, lam, mu, cp, cq, a, ir, one_ep, e0, e1, e2, y0, y1, y2, z0, z1, z2):
+    """G = V_p V_q (T<p,q> - T<q,p>) of bond p -> q (eqs. 6-7, 9): the force on p, -G on q.
+
+    a = w V_q V_p / |xi|, ir = 1 / |xi|, one_ep = 1 + e_p; eta = e, Ybar_p = y, Ybar_q = z (= Fbar_q xi, or eta for a
+    crack particle). Each strain (|y|/|xi| - 1 - e_p)/|y| is 1/|xi| - (1 + e_p)/|y|, and the three 1/|y| share one
+    division: 1/|eta| = |Ybar_p| |Ybar_q| / (|eta| |Ybar_p| |Ybar_q|), and so on."""
+    le = math.sqrt(max(e0 * e0 + e1 * e1 + e2 * e2, TINY))
+    if has_mu:
+        ly = math.sqrt(max(y0 * y0 + y1 * y1 + y2 * y2, TINY))
+        lz = math.sqrt(max(z0 * z0 + z1 * z1 + z2 * z2, TINY))
+        inv = one_ep / max(le * ly * lz, TINY)
+        gy = a * 2.0 * mu * cp * (ir - inv * le * lz)
+        gz = a * 2.0 * mu * cq * (ir - inv * le * ly)
+        g = a * lam * (cp + cq) * (ir - inv * ly * lz)
+        return g * e0 + gy * y0 + gz * z0, g * e1 + gy * y1 + gz * z1, g * e2 + gy * y2 + gz * z2
+    g = a * lam * (cp + cq) * (ir - one_ep / le)
+    return g * e0, g * e1, g * e2
 
 
 @njit(cache=True, inline="always")
@@ -83,15 +137,13 @@ def gather_pairs(p, has_mu, has_crack, has_active, has_ep, particle_x, rest_x, b
 def elastic_forces(start, end, lam, mu, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_wv,
                    bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, force_private):
     """Bond forces (eqs. 6-7, 9) of particles start..end-1 of one elastic or plastic body -> force_private, one
-    force array per thread (sum them with `sum_forces`).
+    force array per thread (sum them with `sum_forces`): the CPU's pair pass.
 
-    Each bond pair is evaluated once, at its lower-index particle p: G = V_p V_q (T<p,q> - T<q,p>) is added to p
-    and subtracted from q, so the pair's forces are equal and opposite to the bit (families are symmetric:
-    build_families stores both directions, cuts and fracture remove both). Thread t takes a fixed particle range
-    and scatters into force_private[t] only: no races, and a fixed order. Per particle, a gather loop fills the
-    scratch rows (`gather_pairs`), a loop without gathers evaluates the strains as SIMD, and a third loop scatters
-    -G onto the q. Each strain (|y|/|xi| - 1 - e_p)/|y| is 1/|xi| - (1 + e_p)/|y|, and the three 1/|y| of a pair
-    share one division: 1/|eta| = |Ybar_p| |Ybar_q| / (|eta| |Ybar_p| |Ybar_q|), and so on."""
+    Each bond pair is evaluated once, at its lower-index particle p: `pair_force` G is added to p and subtracted
+    from q, so the pair's forces are equal and opposite to the bit (families are symmetric: build_families stores
+    both directions, cuts and fracture remove both). Thread t takes a fixed particle range and scatters into
+    force_private[t] only: no races, and a fixed order. Per particle, a gather loop fills the scratch rows
+    (`gather_pairs`), a loop without gathers evaluates the pairs as SIMD, and a third loop scatters -G onto the q."""
     has_active, has_crack = bond_active.shape[0] > 0, particle_crack.shape[0] > 0
     has_ep, has_mu = bond_ep.shape[0] > 0, mu > 0.0
     nt, n = force_private.shape[0], end - start
@@ -110,22 +162,9 @@ def elastic_forces(start, end, lam, mu, particle_x, rest_x, particle_volume, bon
             cp, vp = particle_coef[p], particle_volume[p]
             f0 = f1 = f2 = 0.0
             for k in range(m):
-                ir = s[10, k]
-                a = s[9, k] * ir * vp
-                e0, e1, e2 = s[0, k], s[1, k], s[2, k]
-                le = math.sqrt(max(e0 * e0 + e1 * e1 + e2 * e2, TINY))
-                if has_mu:
-                    y0, y1, y2, z0, z1, z2 = s[3, k], s[4, k], s[5, k], s[6, k], s[7, k], s[8, k]
-                    ly = math.sqrt(max(y0 * y0 + y1 * y1 + y2 * y2, TINY))
-                    lz = math.sqrt(max(z0 * z0 + z1 * z1 + z2 * z2, TINY))
-                    inv = s[12, k] / max(le * ly * lz, TINY)
-                    gy = a * 2.0 * mu * cp * (ir - inv * le * lz)
-                    gz = a * 2.0 * mu * s[11, k] * (ir - inv * le * ly)
-                    g = a * lam * (cp + s[11, k]) * (ir - inv * ly * lz)
-                    g0, g1, g2 = g * e0 + gy * y0 + gz * z0, g * e1 + gy * y1 + gz * z1, g * e2 + gy * y2 + gz * z2
-                else:
-                    g = a * lam * (cp + s[11, k]) * (ir - s[12, k] / le)
-                    g0, g1, g2 = g * e0, g * e1, g * e2
+                g0, g1, g2 = pair_force(has_mu, lam, mu, cp, s[11, k], s[9, k] * s[10, k] * vp, s[10, k], s[12, k],
+                                        s[0, k], s[1, k], s[2, k], s[3, k], s[4, k], s[5, k], s[6, k], s[7, k],
+                                        s[8, k])
                 pair[0, k], pair[1, k], pair[2, k] = g0, g1, g2
                 f0 += g0
                 f1 += g1
@@ -151,6 +190,51 @@ def sum_forces(start, end, force_private, particle_force):
             particle_force[p, a] = acc
 
 
+@njit(cache=True)
+def elastic_force_at(p, lam, mu, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_wv, bond_inv_len,
+                     bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, particle_force, force_private):
+    """f_p = sum_q G over all of p's intact bonds (`pair_force`, p's side of each pair) -> particle_force[p]: the
+    GPU's form of the bond pass (one thread per particle, no atomics), the same formula as the CPU's pair pass."""
+    has_active, has_crack = bond_active.shape[0] > 0, particle_crack.shape[0] > 0
+    has_ep, has_mu = bond_ep.shape[0] > 0, mu > 0.0
+    cp, vp = particle_coef[p], particle_volume[p]
+    p_crack = has_crack and particle_crack[p] != 0
+    f0 = f1 = f2 = 0.0
+    for b in range(bond_start[p], bond_start[p + 1]):
+        if has_active and bond_active[b] == 0:
+            continue
+        q = bond_nbr[b]
+        x0, x1, x2, _ = bond_vector(rest_x, p, q)
+        e0, e1, e2, _ = bond_vector(particle_x, p, q)
+        y0, y1, y2, z0, z1, z2 = e0, e1, e2, e0, e1, e2
+        if has_mu:
+            if not p_crack:
+                y0, y1, y2, _ = averaged_bond(particle_Fbar[p], x0, x1, x2)
+            if not (has_crack and particle_crack[q] != 0):
+                z0, z1, z2, _ = averaged_bond(particle_Fbar[q], x0, x1, x2)
+        one_ep = 1.0 + bond_ep[b] if has_ep else 1.0
+        g0, g1, g2 = pair_force(has_mu, lam, mu, cp, particle_coef[q], bond_wv[b] * bond_inv_len[b] * vp,
+                                bond_inv_len[b], one_ep, e0, e1, e2, y0, y1, y2, z0, z1, z2)
+        f0 += g0
+        f1 += g1
+        f2 += g2
+    particle_force[p, 0] = f0
+    particle_force[p, 1] = f1
+    particle_force[p, 2] = f2
+
+
+def pair_forces_cpu(start, end, lam, mu, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_wv,
+                    bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, particle_force,
+                    force_private):
+    """The CPU loop of ELASTIC_FORCES: the pair pass, then the per-thread arrays summed into particle_force."""
+    elastic_forces(start, end, lam, mu, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_wv,
+                   bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, force_private)
+    sum_forces(start, end, force_private, particle_force)
+
+
+ELASTIC_FORCES = Kernel(elastic_force_at, pair_forces_cpu)
+
+
 @njit(parallel=True, cache=True)
 def elastic_energy(start, end, lam, mu, delta, particle_x, rest_x, particle_volume, bond_start, bond_nbr,
                    bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar):
@@ -172,33 +256,26 @@ def elastic_energy(start, end, lam, mu, delta, particle_x, rest_x, particle_volu
             sb = 0.0
             if mu > 0.0:
                 sb = s if has_crack and particle_crack[p] else averaged_bond(fp, x0, x1, x2)[3] / r - 1.0 - ep
-            wsum += (1.0 - r / delta) * particle_volume[q] * (mu * sb * sb + 0.5 * lam * s * s)
+            wsum += influence(r, delta) * particle_volume[q] * (mu * sb * sb + 0.5 * lam * s * s)
         total += particle_coef[p] * wsum * particle_volume[p]
     return total
 
 
-DUMMY_FBAR = np.zeros((1, 3, 3))  # stands in for Fbar when mu = 0 and no body needs it
+def bonds(solver, body: int, dt: float):
+    """Bond forces of one elastic or plastic body (eqs. 6-7, 9) -> particle_force."""
+    b, a, m = solver.model.bodies[body], solver.a, solver.m
+    solver.backend.run(ELASTIC_FORCES, b.start, b.end, b.params.lam, b.params.mu, a.particle_x, m.rest_x,
+                       m.particle_volume, a.bond_start, a.bond_nbr, a.bond_wv, a.bond_inv_len, a.bond_active,
+                       a.bond_ep, a.particle_crack, m.particle_coef, a.particle_Fbar, a.particle_force,
+                       a.particle_force_private)
 
 
-def forces(model, state, body: int, dt: float):
-    """Phase bonds:elastic (and bonds:plastic): eqs. 6-7, 9 for one body -> state.particle_force."""
-    start, end = model.body_ranges[body]
-    mat = model.materials[body]
-    fbar = state.particle_Fbar if len(state.particle_Fbar) else DUMMY_FBAR
-    elastic_forces(start, end, mat.lam, mat.mu, state.particle_x, model.rest_x, model.particle_volume,
-                   state.bond_start, state.bond_nbr, state.bond_wv, state.bond_inv_len, state.bond_active,
-                   state.bond_ep, state.particle_crack, model.particle_coef, fbar, state.particle_force_private)
-    sum_forces(start, end, state.particle_force_private, state.particle_force)
-
-
-def energy(model, state, body: int) -> float:
-    """Strain energy of one body [J] (Fbar must be current)."""
-    start, end = model.body_ranges[body]
-    mat = model.materials[body]
-    fbar = state.particle_Fbar if len(state.particle_Fbar) else DUMMY_FBAR
-    return elastic_energy(start, end, mat.lam, mat.mu, model.body_horizon[body], state.particle_x, model.rest_x,
-                          model.particle_volume, state.bond_start, state.bond_nbr, state.bond_active, state.bond_ep,
-                          state.particle_crack, model.particle_coef, fbar)
+def energy(solver, state, body: int) -> float:
+    """Strain energy of one body [J] on the host State (Fbar must be current)."""
+    b, m = solver.model.bodies[body], solver.model
+    return elastic_energy(b.start, b.end, b.params.lam, b.params.mu, b.horizon, state.particle_x, m.rest_x,
+                          m.particle_volume, state.bond_start, state.bond_nbr, state.bond_active, state.bond_ep,
+                          state.particle_crack, m.particle_coef, state.particle_Fbar)
 
 
 def effective_constants(lam: float, mu: float, density: float) -> dict:
@@ -212,3 +289,13 @@ def effective_constants(lam: float, mu: float, density: float) -> dict:
         "shear_modulus": m / 3.0,
         "wave_speed": math.sqrt(m / density),
     }
+
+
+def constants(p: Params) -> dict:
+    return effective_constants(p.lam, p.mu, p.density)
+
+
+KIND = MaterialKind(
+    name="elastic", schema=Schema, params=params, forces=bonds, constants=constants, energy=energy,
+    uses_fbar=lambda p: p.mu > 0, fields=fields.PAIR,
+)

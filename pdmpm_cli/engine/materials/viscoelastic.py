@@ -19,39 +19,101 @@ broken bond. Families are rebuilt from current neighbours (rebuild_families) so 
 """
 
 import math
+from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from numba import njit, prange
+from pydantic import Field as Doc
 from scipy.spatial import cKDTree
 
-from pdmpm_cli.engine.bonds import bond_vector
+from pdmpm_cli.engine.bonds import bond_vector, influence
+from pdmpm_cli.engine.fields import BOND, PARTICLE, Field
+from pdmpm_cli.engine.kernel import COPY_ROWS, Kernel
+from pdmpm_cli.engine.materials.base import MaterialKind
+from pdmpm_cli.spec import Strict
+
+
+class Schema(Strict):
+    """Linearised peridynamics (paper section 5, eqs. 12-20) with standard-linear-solid relaxation.
+
+    Each step the previous configuration is the reference: the bond force grows by the linear peridynamic
+    solid response to the step's increment. The bulk part and (1 - relaxing_fraction) of the deviatoric part
+    are kept; relaxing_fraction of it decays with relaxation_time. Shear viscosity ~ relaxing_fraction mu tau."""
+
+    model: Literal["viscoelastic"]
+    density: float = Doc(gt=0, description="Mass density rho [kg/m^3].")
+    lam: float = Doc(ge=0, description="Lame's first parameter lambda; bulk modulus K = lam + 2 mu / 3 [Pa].")
+    mu: float = Doc(gt=0, description="Instantaneous shear modulus mu [Pa].")
+    relaxation_time: float = Doc(
+        gt=0, description="Relaxation time tau of the relaxing deviatoric part (honey short, cream longer) [s].")
+    relaxing_fraction: float = Doc(
+        1.0, ge=0, le=1, description="Fraction l of the deviatoric response that relaxes: 1 flows like a fluid "
+        "(honey), < 1 keeps some shape until bonds break (whipped cream) [-].")
+    break_stretch: float | None = Doc(
+        None, gt=0, description="Bonds stretched beyond this strain from their formation length break (Table 1: "
+        "0.0304 honey, 0.035 cream); families are rebuilt from current neighbours so streams merge and split. "
+        "None: bonds never break [-].")
+    rebuild_distance: float = Doc(
+        0.5, gt=0, le=2, description="Families are rebuilt when some particle has moved this multiple of the "
+        "particle spacing, relative to the body's mean motion, since the last rebuild [-].")
+
+
+@dataclass(frozen=True)
+class Params:
+    density: float  # [kg/m^3]
+    lam: float  # [Pa]
+    mu: float  # [Pa]
+    relaxation_time: float  # tau [s]
+    relaxing_fraction: float  # l [-]
+    break_stretch: float  # [-] (inf: never)
+    rebuild_distance: float  # [spacings]
+
+
+def params(section) -> Params:
+    return Params(section.density, section.lam, section.mu, section.relaxation_time, section.relaxing_fraction,
+                  section.break_stretch or math.inf, section.rebuild_distance)
+
+
+@njit(cache=True)
+def weighted_volume_at(p, delta, particle_volume, bond_start, bond_nbr, bond_len0, particle_m):
+    """m_p = sum_q w L0^2 V_q over intact bonds (LPS weighted volume) -> particle_m[p]."""
+    m = 0.0
+    for b in range(bond_start[p], bond_start[p + 1]):
+        l0 = bond_len0[b]
+        if l0 > 0.0:
+            m += influence(l0, delta) * l0 * l0 * particle_volume[bond_nbr[b]]
+    particle_m[p] = m
 
 
 @njit(parallel=True, cache=True)
 def lps_weighted_volume(start, end, delta, particle_volume, bond_start, bond_nbr, bond_len0, particle_m):
-    """m_p = sum_q w L0^2 V_q over intact bonds (LPS weighted volume) -> particle_m[start:end]."""
+    """`weighted_volume_at` for particles start..end-1."""
     for p in prange(start, end):
-        m = 0.0
-        for b in range(bond_start[p], bond_start[p + 1]):
-            l0 = bond_len0[b]
-            if l0 > 0.0:
-                m += (1.0 - l0 / delta) * l0 * l0 * particle_volume[bond_nbr[b]]
-        particle_m[p] = m
+        weighted_volume_at(p, delta, particle_volume, bond_start, bond_nbr, bond_len0, particle_m)
+
+
+@njit(cache=True)
+def incremental_dilatation_at(p, delta, particle_x, particle_x_prev, particle_volume, bond_start, bond_nbr,
+                              bond_len0, particle_m, particle_dtheta):
+    """dtheta_p = (3 / m_p) sum_q w L0 de V_q, the dilatation of the step's increment -> particle_dtheta[p]."""
+    s = 0.0
+    for b in range(bond_start[p], bond_start[p + 1]):
+        l0 = bond_len0[b]
+        if l0 > 0.0:
+            q = bond_nbr[b]
+            de = bond_vector(particle_x, p, q)[3] - bond_vector(particle_x_prev, p, q)[3]
+            s += influence(l0, delta) * l0 * de * particle_volume[q]
+    particle_dtheta[p] = 3.0 * s / particle_m[p] if particle_m[p] > 0.0 else 0.0
 
 
 @njit(parallel=True, cache=True)
 def incremental_dilatation(start, end, delta, particle_x, particle_x_prev, particle_volume, bond_start, bond_nbr,
                            bond_len0, particle_m, particle_dtheta):
-    """dtheta_p = (3 / m_p) sum_q w L0 de V_q, the dilatation of the step's increment -> particle_dtheta."""
+    """`incremental_dilatation_at` for particles start..end-1."""
     for p in prange(start, end):
-        s = 0.0
-        for b in range(bond_start[p], bond_start[p + 1]):
-            l0 = bond_len0[b]
-            if l0 > 0.0:
-                q = bond_nbr[b]
-                de = bond_vector(particle_x, p, q)[3] - bond_vector(particle_x_prev, p, q)[3]
-                s += (1.0 - l0 / delta) * l0 * de * particle_volume[q]
-        particle_dtheta[p] = 3.0 * s / particle_m[p] if particle_m[p] > 0.0 else 0.0
+        incremental_dilatation_at(p, delta, particle_x, particle_x_prev, particle_volume, bond_start, bond_nbr,
+                                  bond_len0, particle_m, particle_dtheta)
 
 
 @njit(cache=True, inline="always")
@@ -73,53 +135,71 @@ def relaxation_factors(tau, dt):
     return math.exp(-x), -math.expm1(-x) / x
 
 
+@njit(cache=True)
+def viscoelastic_force_at(p, bulk, mu, tau, fraction, break_stretch, delta, dt, particle_x, particle_x_prev,
+                          particle_volume, bond_start, bond_nbr, particle_m, particle_dtheta, bond_len0, bond_force_el,
+                          bond_force_visc, particle_force):
+    """Eq. 12 with SLS relaxation for particle p -> bond_len0 (breaks), bond_force_el/visc, particle_force[p];
+    returns the bonds it broke.
+
+    Over-stretched bonds break first (each stored direction by its own particle, so both copies, counted as 2).
+    Then every intact bond's pair forces grow by the step's LPS increment and f_p = sum_q (el + visc) dir(eta)
+    V_p V_q overwrites particle_force[p]. Both copies of a bond do the same operations in the same order (lower
+    index first), so they stay bitwise equal."""
+    decay, gain = relaxation_factors(tau, dt)
+    keep = 1.0 - fraction
+    broken = 0
+    f0 = 0.0
+    f1 = 0.0
+    f2 = 0.0
+    vp = particle_volume[p]
+    for b in range(bond_start[p], bond_start[p + 1]):
+        l0 = bond_len0[b]
+        if l0 <= 0.0:
+            continue
+        q = bond_nbr[b]
+        e0, e1, e2, l = bond_vector(particle_x, p, q)
+        if l / l0 - 1.0 > break_stretch:
+            bond_len0[b] = -1.0
+            bond_force_el[b] = 0.0
+            bond_force_visc[b] = 0.0
+            broken += 1
+            continue
+        de = l - bond_vector(particle_x_prev, p, q)[3]
+        w = influence(l0, delta)
+        lo = p if p < q else q
+        hi = q if p < q else p
+        b_lo, d_lo = one_sided_increment(bulk, mu, particle_dtheta[lo], particle_m[lo], w, l0, de)
+        b_hi, d_hi = one_sided_increment(bulk, mu, particle_dtheta[hi], particle_m[hi], w, l0, de)
+        ddev = d_lo + d_hi
+        bond_force_el[b] += (b_lo + b_hi) + keep * ddev
+        bond_force_visc[b] = bond_force_visc[b] * decay + fraction * ddev * gain
+        if l > 0.0:
+            g = (bond_force_el[b] + bond_force_visc[b]) * (vp * particle_volume[q]) / l
+            f0 += g * e0
+            f1 += g * e1
+            f2 += g * e2
+    particle_force[p, 0] = f0
+    particle_force[p, 1] = f1
+    particle_force[p, 2] = f2
+    return broken
+
+
 @njit(parallel=True, cache=True)
 def viscoelastic_forces(start, end, bulk, mu, tau, fraction, break_stretch, delta, dt, particle_x, particle_x_prev,
                         particle_volume, bond_start, bond_nbr, particle_m, particle_dtheta, bond_len0, bond_force_el,
                         bond_force_visc, particle_force):
-    """Eq. 12 with SLS relaxation -> bond_len0 (breaks), bond_force_el/visc, particle_force; returns bonds broken.
-
-    Over-stretched bonds break first (both copies in the same call, counted as 2). Then every intact bond's pair
-    forces grow by the step's LPS increment and f_p = sum_q (el + visc) dir(eta) V_p V_q overwrites particle_force."""
-    decay, gain = relaxation_factors(tau, dt)
-    keep = 1.0 - fraction
+    """`viscoelastic_force_at` for particles start..end-1; returns the bonds broken."""
     broken = 0
     for p in prange(start, end):
-        f0 = 0.0
-        f1 = 0.0
-        f2 = 0.0
-        vp = particle_volume[p]
-        for b in range(bond_start[p], bond_start[p + 1]):
-            l0 = bond_len0[b]
-            if l0 <= 0.0:
-                continue
-            q = bond_nbr[b]
-            e0, e1, e2, l = bond_vector(particle_x, p, q)
-            if l / l0 - 1.0 > break_stretch:
-                bond_len0[b] = -1.0
-                bond_force_el[b] = 0.0
-                bond_force_visc[b] = 0.0
-                broken += 1
-                continue
-            de = l - bond_vector(particle_x_prev, p, q)[3]
-            w = 1.0 - l0 / delta
-            # Same operations in the same order on both copies: lower index first, then higher.
-            lo = min(p, q)
-            hi = max(p, q)
-            b_lo, d_lo = one_sided_increment(bulk, mu, particle_dtheta[lo], particle_m[lo], w, l0, de)
-            b_hi, d_hi = one_sided_increment(bulk, mu, particle_dtheta[hi], particle_m[hi], w, l0, de)
-            ddev = d_lo + d_hi
-            bond_force_el[b] += (b_lo + b_hi) + keep * ddev
-            bond_force_visc[b] = bond_force_visc[b] * decay + fraction * ddev * gain
-            if l > 0.0:
-                g = (bond_force_el[b] + bond_force_visc[b]) * (vp * particle_volume[q]) / l
-                f0 += g * e0
-                f1 += g * e1
-                f2 += g * e2
-        particle_force[p, 0] = f0
-        particle_force[p, 1] = f1
-        particle_force[p, 2] = f2
+        broken += viscoelastic_force_at(p, bulk, mu, tau, fraction, break_stretch, delta, dt, particle_x,
+                                        particle_x_prev, particle_volume, bond_start, bond_nbr, particle_m,
+                                        particle_dtheta, bond_len0, bond_force_el, bond_force_visc, particle_force)
     return broken
+
+
+INCREMENTAL_DILATATION = Kernel(incremental_dilatation_at, incremental_dilatation)
+FORCES = Kernel(viscoelastic_force_at, viscoelastic_forces, reduce="sum")
 
 
 @njit(cache=True)
@@ -140,17 +220,15 @@ def lps_stress(p, particle_x, particle_volume, bond_start, bond_nbr, bond_pair_f
     return s
 
 
-def rebuild_families(particle_x, bond_start, bond_nbr, bond_arrays, ranges,
-                     visco_names=("bond_len0", "bond_force_el", "bond_force_visc")):
+def rebuild_families(particle_x, bond_start, bond_nbr, bond_arrays, ranges, length_name="bond_len0"):
     """Families of the bodies in `ranges` rebuilt from current neighbours; all other bonds kept as they are.
 
     ranges: (start, end, delta) of each rebuilt body. A pair within delta that was an intact bond keeps every
-    per-bond value; a new pair (or a broken one, visco_names[0] < 0) starts with visco_names[0] = current
+    per-bond value; a new pair (or a broken one, bond_arrays[length_name] < 0) starts with length_name = current
     length and 0 in every other array; pairs beyond delta are dropped. Other bodies' bonds and values are
     relocated unchanged. The CSR must be sorted by (p, q) (build_families' order) and stays so."""
-    missing = [name for name in visco_names if name not in bond_arrays]
-    if missing:
-        raise KeyError(f"rebuild_families needs the per-bond arrays {missing}")
+    if length_name not in bond_arrays:
+        raise KeyError(f"rebuild_families needs the per-bond array {length_name}")
     n = len(particle_x)
     src = np.repeat(np.arange(n, dtype=np.int64), np.diff(bond_start))
     old_keys = src * n + bond_nbr
@@ -160,7 +238,7 @@ def rebuild_families(particle_x, bond_start, bond_nbr, bond_arrays, ranges,
     kept = np.flatnonzero(~rebuilt[src])
     keys = [old_keys[kept]]
     values = {name: [arr[kept]] for name, arr in bond_arrays.items()}
-    len0 = bond_arrays[visco_names[0]]
+    len0 = bond_arrays[length_name]
     for start, end, delta in ranges:
         pts = particle_x[start:end]
         pairs = cKDTree(pts).query_pairs(delta, output_type="ndarray").astype(np.int64)
@@ -177,7 +255,7 @@ def rebuild_families(particle_x, bond_start, bond_nbr, bond_arrays, ranges,
         for name, arr in bond_arrays.items():
             fresh = np.zeros((len(new_keys),) + arr.shape[1:], dtype=arr.dtype)
             fresh[survive] = arr[idx[survive]]
-            if name == visco_names[0]:
+            if name == length_name:
                 fresh[~survive] = length[~survive]
             values[name].append(fresh)
     keys = np.concatenate(keys)
@@ -203,60 +281,82 @@ def effective_constants(lam: float, mu: float, density: float) -> dict:
     }
 
 
-# ---- phases the solver runs (registry entry "viscoelastic")
+# ---- the material's hooks
 
-def init_state(model, state, body: int):
-    """Initial state: every bond formed at its rest length with zero force; m_p of the rest families."""
-    start, end = model.body_ranges[body]
-    b0, b1 = state.bond_start[start], state.bond_start[end]
-    src = np.repeat(np.arange(start, end), np.diff(state.bond_start[start:end + 1]))
+def init_state(solver, state, body: int):
+    """Initial state: every bond formed at its rest length with zero force; m_p of the rest families; the
+    previous and last-rebuild positions are the initial ones."""
+    b, model = solver.model.bodies[body], solver.model
+    b0, b1 = state.bond_start[b.start], state.bond_start[b.end]
+    src = np.repeat(np.arange(b.start, b.end), np.diff(state.bond_start[b.start:b.end + 1]))
     state.bond_len0[b0:b1] = np.linalg.norm(model.rest_x[state.bond_nbr[b0:b1]] - model.rest_x[src], axis=1)
-    lps_weighted_volume(start, end, model.body_horizon[body], model.particle_volume, state.bond_start,
-                        state.bond_nbr, state.bond_len0, state.particle_m)
+    lps_weighted_volume(b.start, b.end, b.horizon, model.particle_volume, state.bond_start, state.bond_nbr,
+                        state.bond_len0, state.particle_m)
+    state.particle_x_prev[b.start:b.end] = state.particle_x[b.start:b.end]
+    state.particle_x_rebuild[b.start:b.end] = state.particle_x[b.start:b.end]
 
 
-def refresh_families(model, state, body: int, dt: float):
-    """Phase families:viscoelastic, right after the forces (so particle_x_prev = particle_x and new bonds form
-    at the next step's reference length): once a particle has moved rebuild_distance h since the last rebuild,
-    rebuild the body's families from current neighbours (streams merge and split), keeping surviving bonds."""
-    start, end = model.body_ranges[body]
-    mat = model.materials[body]
-    moved = state.particle_x[start:end] - state.particle_x_rebuild[start:end]
-    moved -= moved.mean(axis=0)  # a body moving as a whole keeps its neighbours: only relative motion counts
-    limit = mat.rebuild_distance * model.body_spacing[body]
-    if end == start or np.einsum("ij,ij->i", moved, moved).max() <= limit * limit:
-        return
-    names = [k for k in ("bond_len0", "bond_force_el", "bond_force_visc", "bond_ep", "bond_active", "bond_wv",
-                         "bond_inv_len")
-             if len(getattr(state, k))]
-    state.bond_start, state.bond_nbr, arrays = rebuild_families(
-        state.particle_x, state.bond_start, state.bond_nbr, {k: getattr(state, k) for k in names},
-        [(start, end, model.body_horizon[body])])
-    for k, v in arrays.items():
-        setattr(state, k, v)
-    if len(state.bond_active):  # bonds of a viscoelastic body never count as fracture damage
-        state.bond_active[state.bond_start[start]:state.bond_start[end]] = 1
-    lps_weighted_volume(start, end, model.body_horizon[body], model.particle_volume, state.bond_start,
-                        state.bond_nbr, state.bond_len0, state.particle_m)
-    state.particle_x_rebuild[start:end] = state.particle_x[start:end]
+def families(solver, body: int, dt: float):
+    """After the forces (so particle_x_prev = particle_x and new bonds form at the next step's reference length):
+    once a particle has moved rebuild_distance h since the last rebuild, rebuild the body's families from current
+    neighbours (streams merge and split), keeping surviving bonds and every per-bond array with them. On the host:
+    the CUDA backend copies the arrays down and back."""
+    b, state = solver.model.bodies[body], solver.state
+    with solver.backend.on_host(state, ("particle_x", "particle_x_rebuild")):
+        moved = state.particle_x[b.start:b.end] - state.particle_x_rebuild[b.start:b.end]
+        moved -= moved.mean(axis=0)  # a body moving as a whole keeps its neighbours: only relative motion counts
+        limit = b.params.rebuild_distance * b.spacing
+        if b.end == b.start or np.einsum("ij,ij->i", moved, moved).max() <= limit * limit:
+            return
+    carried = tuple(state.bond_arrays())
+    with solver.backend.on_host(state, ("particle_x", "bond_start", "bond_nbr", "particle_m", "particle_x_rebuild")
+                                + carried):
+        state.bond_start, state.bond_nbr, arrays = rebuild_families(
+            state.particle_x, state.bond_start, state.bond_nbr, state.bond_arrays(), [(b.start, b.end, b.horizon)])
+        for name, array in arrays.items():
+            setattr(state, name, array)
+        if state.has("bond_active"):  # bonds of a viscoelastic body never count as fracture damage
+            state.bond_active[state.bond_start[b.start]:state.bond_start[b.end]] = 1
+        model = solver.model
+        lps_weighted_volume(b.start, b.end, b.horizon, model.particle_volume, state.bond_start, state.bond_nbr,
+                            state.bond_len0, state.particle_m)
+        state.particle_x_rebuild[b.start:b.end] = state.particle_x[b.start:b.end]
 
 
-def forces(model, state, body: int, dt: float):
-    """Phase bonds:viscoelastic: eq. 12 with the LPS increment since the previous force evaluation."""
-    start, end = model.body_ranges[body]
-    mat = model.materials[body]
-    delta = model.body_horizon[body]
-    elapsed = state.dt_prev  # the increment since particle_x_prev happened over the previous step, not over dt
-    incremental_dilatation(start, end, delta, state.particle_x, state.particle_x_prev, model.particle_volume,
-                           state.bond_start, state.bond_nbr, state.bond_len0, state.particle_m, state.particle_dtheta)
-    viscoelastic_forces(start, end, mat.lam + 2.0 * mat.mu / 3.0, mat.mu, mat.relaxation_time, mat.relaxing_fraction,
-                        mat.break_stretch or math.inf, delta, elapsed, state.particle_x, state.particle_x_prev,
-                        model.particle_volume, state.bond_start, state.bond_nbr, state.particle_m,
-                        state.particle_dtheta, state.bond_len0, state.bond_force_el, state.bond_force_visc,
-                        state.particle_force)
-    state.particle_x_prev[start:end] = state.particle_x[start:end]
+def bonds(solver, body: int, dt: float):
+    """Eq. 12 with the LPS increment since the previous force evaluation -> particle_force."""
+    b, a, m = solver.model.bodies[body], solver.a, solver.m
+    p = b.params
+    run = solver.backend.run
+    elapsed = solver.state.dt_prev  # the increment since particle_x_prev happened over the previous step, not dt
+    run(INCREMENTAL_DILATATION, b.start, b.end, b.horizon, a.particle_x, a.particle_x_prev, m.particle_volume,
+        a.bond_start, a.bond_nbr, a.bond_len0, a.particle_m, a.particle_dtheta)
+    run(FORCES, b.start, b.end, p.lam + 2.0 * p.mu / 3.0, p.mu, p.relaxation_time, p.relaxing_fraction,
+        p.break_stretch, b.horizon, elapsed, a.particle_x, a.particle_x_prev, m.particle_volume, a.bond_start,
+        a.bond_nbr, a.particle_m, a.particle_dtheta, a.bond_len0, a.bond_force_el, a.bond_force_visc,
+        a.particle_force)
+    run(COPY_ROWS, b.start, b.end, a.particle_x, a.particle_x_prev)
 
 
-def energy(model, state, body: int) -> float:
+def energy(solver, state, body: int) -> float:
     """0: the linearised model has no stored-energy function of the positions (its forces depend on the path)."""
     return 0.0
+
+
+def constants(p: Params) -> dict:
+    return effective_constants(p.lam, p.mu, p.density)
+
+
+KIND = MaterialKind(
+    name="viscoelastic", schema=Schema, params=params, forces=bonds, constants=constants, energy=energy,
+    after_forces=families, start=init_state,
+    fields=(
+        Field("bond_len0", BOND, doc="formation length of each bond [m] (< 0: broken)"),
+        Field("bond_force_el", BOND, doc="non-relaxing pair force [N/m^6]"),
+        Field("bond_force_visc", BOND, doc="relaxing pair force [N/m^6]"),
+        Field("particle_m", PARTICLE, doc="LPS weighted volume [m^5]"),
+        Field("particle_dtheta", PARTICLE, transient=True, doc="incremental dilatation of the step [-]"),
+        Field("particle_x_prev", PARTICLE, (3,), doc="positions at the previous force evaluation [m]"),
+        Field("particle_x_rebuild", PARTICLE, (3,), doc="positions at the last family rebuild [m]"),
+    ),
+)

@@ -1,0 +1,72 @@
+"""Validated scene + discretisation -> the engine's Model: typed parameters and packed arrays, so the engine never
+reads a pydantic object."""
+
+import numpy as np
+
+from pdmpm_cli.engine.bonds import calibration_coefficients, reference_family_terms
+from pdmpm_cli.engine.colliders import BOUNDARY_CODES, BOX, CYLINDER, PLANE, ROW, SPHERE
+from pdmpm_cli.discretize import Discretization
+from pdmpm_cli.engine.materials import MATERIALS, kind_of
+from pdmpm_cli.engine.model import BodyParams, FractureParams, Model
+from pdmpm_cli.scene.schema import Scene
+
+
+def _unit(v):
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)
+
+
+def collider_table(colliders) -> np.ndarray:
+    """Pack validated scene colliders into the (n, ROW) table the kernels read (layout: engine.colliders)."""
+    table = np.zeros((len(colliders), ROW))
+    for i, c in enumerate(colliders):
+        row = table[i]
+        row[9] = -1.0 if getattr(c, "inside_out", False) else 1.0
+        row[10:13] = c.velocity
+        row[13] = BOUNDARY_CODES[c.boundary]
+        row[14] = c.friction
+        if c.type == "plane":
+            row[0], row[1:4], row[4:7] = PLANE, c.point, _unit(c.normal)
+        elif c.type == "box":
+            row[0], row[1:4], row[4:7] = BOX, c.center, 0.5 * np.asarray(c.size)
+        elif c.type == "sphere":
+            row[0], row[1:4], row[7] = SPHERE, c.center, c.radius
+        else:
+            row[0], row[1:4], row[4:7] = CYLINDER, c.center, _unit(c.axis)
+            row[7], row[8] = c.radius, 0.5 * c.height
+    return table
+
+
+def body_params(scene: Scene, disc: Discretization) -> tuple[BodyParams, ...]:
+    out = []
+    for i, (body, (start, end)) in enumerate(zip(scene.bodies, disc.body_ranges)):
+        kind = kind_of(body.material)
+        frac = body.fracture
+        out.append(BodyParams(
+            name=body.name, kind=kind, params=MATERIALS[kind].params(body.material), start=start, end=end,
+            spacing=float(disc.body_spacing[i]), horizon=float(disc.body_horizon[i]),
+            fracture=FractureParams(frac.threshold, frac.damage_resistance) if frac is not None else None))
+    return tuple(out)
+
+
+def build_model(scene: Scene, disc: Discretization) -> Model:
+    n = disc.n_particles
+    omega = np.zeros(n)
+    kinv = np.zeros((n, 3, 3))
+    reference_family_terms(disc.rest_x, disc.volume, disc.bond_start, disc.bond_nbr, disc.body,
+                           disc.body_horizon, omega, kinv)
+    g = scene.grid
+    lo, hi = np.asarray(g.domain.min, dtype=np.float64), np.asarray(g.domain.max, dtype=np.float64)
+    cells = np.ceil((hi - lo) / g.cell_size - 1e-9).astype(int)
+    return Model(
+        rest_x=disc.rest_x, particle_volume=disc.volume, particle_mass=disc.mass, particle_body=disc.body,
+        bond_start=disc.bond_start, bond_nbr=disc.bond_nbr, particle_Kinv=kinv,
+        particle_coef=calibration_coefficients(omega, disc.body, disc.body_horizon), particle_omega=omega,
+        pin_mask=disc.pin_mask.astype(np.uint8), pin_velocity=disc.pin_velocity, pin_stop=disc.pin_stop,
+        bodies=body_params(scene, disc),
+        colliders=collider_table(scene.colliders), gravity=np.asarray(scene.gravity, dtype=np.float64),
+        wind_velocity=np.asarray(scene.wind.velocity if scene.wind else (0.0, 0.0, 0.0), dtype=np.float64),
+        wind_drag=scene.wind.drag if scene.wind else 0.0,
+        origin=lo, dx=g.cell_size, grid_shape=tuple(int(c) + 1 for c in cells),
+        wall_boundary=BOUNDARY_CODES[g.boundary], wall_friction=g.friction,
+    )

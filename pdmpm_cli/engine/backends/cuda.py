@@ -1,0 +1,408 @@
+"""The CUDA backend: the step on one NVIDIA GPU through numba.cuda, on device-resident arrays.
+
+Nothing here is a second implementation of the physics. `device` compiles the Python source of the engine's @njit
+per-item formulae (`*_at` functions, Kernel.fn) for the GPU, with their jitted callees compiled the same way, and
+`particle_kernel` wraps one in a kernel with one thread per particle. The CPU loops call the very same functions.
+Three substitutions make the source valid CUDA: `scatter_node` adds atomically (P2G into one grid), the builtin
+max and min become branches (numba's CUDA target cannot compile them), and `np` is `math` (CUDA has no np.floor).
+
+The host State is refreshed (`sync`) when the runner needs it: once per frame, for diagnostics, before an error
+message and for the serial parts that run on the host (fracture clustering, family rebuilds: `on_host`). Per step
+the host reads one small statistics array after G2P: the max speed (for dt), the non-finite count and the position
+bounds, from which it sizes the next P2G's node box and detects particles leaving the domain before any kernel
+could index off the grid.
+"""
+
+import functools
+import inspect
+import math
+import types
+from contextlib import contextmanager
+
+import numpy as np
+
+if not hasattr(np, "row_stack"):
+    np.row_stack = np.vstack  # numba-cuda 0.30 still calls np.row_stack, which numpy 2.5 removed
+
+import numba  # noqa: E402
+from numba import cuda, float64  # noqa: E402
+from numba.core.registry import CPUDispatcher  # noqa: E402
+
+from pdmpm_cli.engine import fracture, transfer  # noqa: E402
+from pdmpm_cli.engine.fields import GRID  # noqa: E402
+from pdmpm_cli.engine.kernel import Kernel  # noqa: E402
+
+THREADS = 128  # threads per block
+# Slots of the per-step statistics array the host reads once per step.
+STAT_LO, STAT_HI = 0, 3  # per-axis min and max of the particle positions after G2P [m] (the next P2G's node box)
+STAT_VMAX, STAT_BAD = 6, 7  # max particle speed [m/s], number of non-finite particles
+N_STATS = 8
+
+
+def device_name() -> str:
+    """The GPU the kernels run on, for benchmark tables."""
+    if numba.config.ENABLE_CUDASIM:
+        return "numba.cuda simulator"
+    name = cuda.get_current_device().name
+    return name.decode() if isinstance(name, bytes) else name
+
+
+@cuda.jit(device=True)
+def larger(a, b):
+    """max(a, b) as Python defines it (b only if b > a)."""
+    return b if b > a else a
+
+
+@cuda.jit(device=True)
+def smaller(a, b):
+    """min(a, b) as Python defines it (b only if b < a)."""
+    return b if b < a else a
+
+
+@cuda.jit(device=True)
+def scatter_node_atomic(g, i, j, k, m, p0, p1, p2):
+    """transfer.scatter_node with atomic adds: every particle's P2G adds into the one grid."""
+    cuda.atomic.add(g, (i, j, k, 0), m)
+    cuda.atomic.add(g, (i, j, k, 1), p0)
+    cuda.atomic.add(g, (i, j, k, 2), p1)
+    cuda.atomic.add(g, (i, j, k, 3), p2)
+
+
+SUBSTITUTES = {"max": larger, "min": smaller, "np": math}
+REPLACED = {transfer.scatter_node: scatter_node_atomic}
+
+
+@functools.cache
+def device(fn):
+    """A CUDA device function compiled from the Python source of the @njit function `fn`: the jitted functions it
+    calls by name become their device versions (recursively; so call them by name, not as module attributes), and
+    SUBSTITUTES replace what CUDA lacks."""
+    if fn in REPLACED:
+        return REPLACED[fn]
+    py = fn.py_func
+    scope = dict(py.__globals__)
+    for name in py.__code__.co_names:
+        value = scope.get(name)
+        if isinstance(value, CPUDispatcher):
+            scope[name] = device(value)
+    scope.update({k: v for k, v in SUBSTITUTES.items() if k in py.__code__.co_names})
+    return cuda.jit(device=True)(types.FunctionType(py.__code__, scope, py.__name__, py.__defaults__,
+                                                    py.__closure__))
+
+
+def _generated(name: str, params: list[str], body: str, scope: dict):
+    """A CUDA kernel from source text: def name(params): body."""
+    src = f"def {name}({', '.join(params)}):\n" + "\n".join("    " + line for line in body.splitlines())
+    exec(compile(src, f"<pdmpm cuda kernel {name}>", "exec"), scope)
+    return cuda.jit(scope[name])
+
+
+@functools.cache
+def particle_kernel(kernel: Kernel):
+    """A kernel running kernel.fn(i, *args, *scratch) for i in start..end-1, one thread each; its reduction, if any,
+    goes to out[0] with an atomic max or add."""
+    names = list(inspect.signature(kernel.fn.py_func).parameters)
+    item, args = names[0], names[1:len(names) - len(kernel.scratch)]
+    scratch = [f"{s} = cuda.local.array({n}, float64)" for s, n in kernel.scratch]
+    call = f"fn({item}, {', '.join(args + [s for s, _ in kernel.scratch])})"
+    reduce = {None: call, "max": f"cuda.atomic.max(out, 0, float64({call}))",
+              "sum": f"cuda.atomic.add(out, 0, float64({call}))"}[kernel.reduce]
+    body = "\n".join([f"{item} = start + cuda.grid(1)", f"if {item} < end:"] + ["    " + s for s in scratch]
+                     + ["    " + reduce])
+    return _generated(kernel.fn.py_func.__name__, ["start", "end", "out"] + args, body,
+                      {"cuda": cuda, "float64": float64, "fn": device(kernel.fn)})
+
+
+def launch(kern, n: int, *args):
+    """Run `kern` on n threads (none when n = 0)."""
+    if n > 0:
+        kern[(n + THREADS - 1) // THREADS, THREADS](*args)
+
+
+# ---- the kernels of the transfers and of fracture: thin wrappers of the shared per-item formulae
+
+d_p2g_at = device(transfer.p2g_at)
+d_grid_node_update = device(transfer.grid_node_update)
+d_g2p_at = device(transfer.g2p_at)
+d_crack_contact_at = device(fracture.crack_contact_at)
+d_crack_update_at = device(fracture.crack_update_at)
+d_cell_key = device(fracture.cell_key)
+d_broken_bonds = device(fracture.broken_bonds)
+
+
+@cuda.jit(device=True)
+def box_node(t, box):
+    """Node (i, j, k) of thread t over the node box (i0, i1, j0, j1, k0, k1), or i = -1 past its end."""
+    ny = box[3] - box[2]
+    nz = box[5] - box[4]
+    if t >= (box[1] - box[0]) * ny * nz:
+        return -1, 0, 0
+    return box[0] + t // (ny * nz), box[2] + (t // nz) % ny, box[4] + t % nz
+
+
+@cuda.jit
+def zero_box(box, grid):
+    """grid = 0 on the node box: the only nodes P2G can touch this step."""
+    i, j, k = box_node(cuda.grid(1), box)
+    if i >= 0:
+        for q in range(4):
+            grid[i, j, k, q] = 0.0
+
+
+@cuda.jit
+def p2g_kernel(particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt, origin,
+               inv_dx, grid):
+    p = cuda.grid(1)
+    if p < particle_x.shape[0]:
+        wx = cuda.local.array(4, float64)
+        wy = cuda.local.array(4, float64)
+        wz = cuda.local.array(4, float64)
+        d_p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt,
+                 origin, inv_dx, grid, wx, wy, wz)
+
+
+@cuda.jit
+def grid_update_kernel(grid, dt, gravity, wind, drag, origin, dx, box, t_new, colliders, wall_boundary, wall_friction):
+    i, j, k = box_node(cuda.grid(1), box)
+    if i >= 0:
+        v = cuda.local.array(3, float64)
+        nrm = cuda.local.array(3, float64)
+        d_grid_node_update(i, j, k, grid, dt, gravity, wind, drag, origin, dx, t_new, colliders, wall_boundary,
+                           wall_friction, v, nrm)
+
+
+@cuda.jit
+def reset_stats(stats):
+    """Clear the per-step slots (bounds, max speed, non-finite count) before G2P fills them."""
+    if cuda.grid(1) == 0:
+        for a in range(3):
+            stats[STAT_LO + a] = math.inf
+            stats[STAT_HI + a] = -math.inf
+        stats[STAT_VMAX] = 0.0
+        stats[STAT_BAD] = 0.0
+
+
+@cuda.jit(device=True)
+def add_stats(p, s, particle_x, stats):
+    """Fold particle p's speed s (-1: not finite) and position into the step's statistics."""
+    if s < 0.0:
+        cuda.atomic.add(stats, STAT_BAD, 1.0)
+        return
+    cuda.atomic.max(stats, STAT_VMAX, s)
+    for a in range(3):
+        cuda.atomic.min(stats, STAT_LO + a, particle_x[p, a])
+        cuda.atomic.max(stats, STAT_HI + a, particle_x[p, a])
+
+
+@cuda.jit
+def g2p_kernel(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, particle_crack,
+               particle_x, particle_v, particle_C, stats):
+    p = cuda.grid(1)
+    if p < particle_x.shape[0]:
+        wx = cuda.local.array(4, float64)
+        wy = cuda.local.array(4, float64)
+        wz = cuda.local.array(4, float64)
+        v = cuda.local.array(3, float64)
+        nrm = cuda.local.array(3, float64)
+        s = d_g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop,
+                     particle_crack, particle_x, particle_v, particle_C, wx, wy, wz, v, nrm)
+        add_stats(p, s, particle_x, stats)
+
+
+@cuda.jit
+def crack_contact_kernel(grid, dt, gravity, origin, inv_dx, crack_index, particle_damage, particle_mass,
+                         particle_volume, particle_force, particle_x, particle_v):
+    """fracture.crack_contact on one thread: each contact reads the grid the previous ones changed, so they run in
+    the CPU's order (crack particles are few)."""
+    if cuda.grid(1) == 0:
+        wx = cuda.local.array(4, float64)
+        wy = cuda.local.array(4, float64)
+        wz = cuda.local.array(4, float64)
+        gx = cuda.local.array(4, float64)
+        gy = cuda.local.array(4, float64)
+        gz = cuda.local.array(4, float64)
+        for i in range(crack_index.shape[0]):
+            d_crack_contact_at(crack_index[i], grid, dt, gravity, origin, inv_dx, particle_damage, particle_mass,
+                               particle_volume, particle_force, particle_x, particle_v, wx, wy, wz, gx, gy, gz)
+
+
+@cuda.jit
+def crack_update_kernel(dt, t_new, colliders, lo, hi, crack_index, particle_x, particle_v, particle_C, stats):
+    i = cuda.grid(1)
+    if i < crack_index.shape[0]:
+        v = cuda.local.array(3, float64)
+        nrm = cuda.local.array(3, float64)
+        p = crack_index[i]
+        add_stats(p, d_crack_update_at(p, dt, t_new, colliders, lo, hi, particle_x, particle_v, particle_C, v, nrm),
+                  particle_x, stats)
+
+
+@cuda.jit
+def zero_cells(cell_bonds, cell_broken):
+    """Clear the cell counts (flat arrays over the grid's cells)."""
+    c = cuda.grid(1)
+    if c < cell_bonds.shape[0]:
+        cell_bonds[c] = 0
+        cell_broken[c] = 0
+
+
+@cuda.jit
+def count_cells(particle_x, origin, inv_dx, cells, bond_start, bond_active, cell_bonds, cell_broken):
+    """Each particle's bonds and broken bonds into its cell's counts (eq. 21's p_inactive; integers, so the atomic
+    order does not matter)."""
+    p = cuda.grid(1)
+    if p < particle_x.shape[0]:
+        c = d_cell_key(particle_x, p, origin, inv_dx, cells)
+        cuda.atomic.add(cell_bonds, c, bond_start[p + 1] - bond_start[p])
+        cuda.atomic.add(cell_broken, c, d_broken_bonds(p, bond_start, bond_active))
+
+
+@cuda.jit
+def cell_fraction(particle_x, origin, inv_dx, cells, cell_bonds, cell_broken, particle_inactive):
+    p = cuda.grid(1)
+    if p < particle_x.shape[0]:
+        c = d_cell_key(particle_x, p, origin, inv_dx, cells)
+        nt = cell_bonds[c]
+        particle_inactive[p] = cell_broken[c] / nt if nt > 0 else 0.0
+
+
+class DeviceArrays:
+    """Device copies of a host object's arrays by attribute name, uploaded on first use (or replaced by name)."""
+
+    def __init__(self, host):
+        self.__dict__["_host"] = host
+        self.__dict__["_dev"] = {}
+
+    def __getattr__(self, name):
+        dev = self.__dict__["_dev"]
+        if name not in dev:
+            dev[name] = cuda.to_device(np.ascontiguousarray(getattr(self.__dict__["_host"], name)))
+        return dev[name]
+
+    def __setattr__(self, name, value):
+        self.__dict__["_dev"][name] = value
+
+    def allocated(self):
+        return self.__dict__["_dev"]
+
+
+class CudaBackend:
+    """The State's arrays live on the GPU between frames; see the module docstring."""
+
+    name = "cuda"
+
+    def __init__(self):
+        self.device_name = device_name()
+        self.stats = np.zeros(N_STATS)
+        self.dirty = False  # the device holds steps the host State has not seen
+
+    # ---- host <-> device
+    def start(self, solver, state):
+        """Upload the State: the host State is the truth here, whatever the device still holds."""
+        self.dirty = False
+        solver.a = DeviceArrays(state)
+        for name in state.arrays:
+            getattr(solver.a, name)
+        solver.m = DeviceArrays(solver.model)
+        self.extra = DeviceArrays(solver)  # the solver's own arrays: cells, valid box, crack particles
+        self.stats[STAT_LO:STAT_LO + 3] = state.particle_x.min(axis=0) if len(state.particle_x) else 0.0
+        self.stats[STAT_HI:STAT_HI + 3] = state.particle_x.max(axis=0) if len(state.particle_x) else 0.0
+        self.dev_stats = cuda.to_device(self.stats)
+        self.solver = solver
+
+    def sync(self, state):
+        """Copy the device's State arrays (all but the grids) into the host State."""
+        if self.dirty:
+            dev = self.solver.a.allocated()
+            for name, array in state.arrays.items():
+                if name in dev and state.declared[name].where != GRID:
+                    dev[name].copy_to_host(array)
+            self.dirty = False
+
+    def synchronize(self):
+        cuda.synchronize()
+
+    @contextmanager
+    def on_host(self, state, names, changed=None):
+        """Work on the host State's arrays `names` within the block; then upload `changed` (default: all of them),
+        which the block may have replaced by arrays of another size."""
+        dev = self.solver.a.allocated()
+        for name in names:
+            if name in dev and self.dirty:
+                dev[name].copy_to_host(state.arrays[name])
+        yield
+        for name in names if changed is None else changed:
+            host = state.arrays[name]
+            if name in dev and dev[name].shape == host.shape:
+                dev[name].copy_to_device(host)
+            else:
+                dev[name] = cuda.to_device(host)
+
+    def run(self, kernel, start, end, *args):
+        self.dirty = True
+        out = None
+        if kernel.reduce is not None:
+            out = cuda.to_device(np.array([-math.inf if kernel.reduce == "max" else 0.0]))
+        launch(particle_kernel(kernel), end - start, start, end, out if out is not None else self.dev_stats, *args)
+        if out is None:
+            return None
+        value = float(out.copy_to_host()[0])
+        return value if kernel.reduce == "max" else int(round(value))
+
+    # ---- the transfers
+    def p2g(self, solver, state, dt) -> int:
+        """Node box and domain test from the bounds of the last G2P (transfer.stencil_on_grid on the extreme
+        particles is the test on all of them), then P2G. Returns 1 when particles are off the grid (no launch)."""
+        self.dirty = True
+        m, a = solver.model, solver.a
+        nodes = np.asarray(m.grid_shape)
+        lo, hi = self.stats[STAT_LO:STAT_LO + 3], self.stats[STAT_HI:STAT_HI + 3]
+        if ((lo - m.origin) / m.dx < 1.0).any() or ((hi - m.origin) / m.dx >= nodes - 3).any():
+            return 1
+        solver.box = solver.box_of(lo, hi)
+        self.box = cuda.to_device(solver.box)
+        b = solver.box
+        launch(zero_box, int((b[1] - b[0]) * (b[3] - b[2]) * (b[5] - b[4])), self.box, a.grid)
+        launch(p2g_kernel, m.n_particles, a.particle_x, a.particle_v, a.particle_C, solver.m.particle_mass,
+               a.particle_force, a.particle_crack, solver.m.pin_mask, dt, solver.m.origin, 1.0 / m.dx, a.grid)
+        return 0
+
+    def grid_update(self, solver, state, dt):
+        m, b = solver.model, solver.box
+        launch(grid_update_kernel, int((b[1] - b[0]) * (b[3] - b[2]) * (b[5] - b[4])), solver.a.grid, dt,
+               solver.m.gravity, solver.m.wind_velocity, m.wind_drag, solver.m.origin, m.dx, self.box,
+               state.time + dt, solver.m.colliders, m.wall_boundary, m.wall_friction)
+
+    def g2p(self, solver, state, dt) -> tuple[float, int]:
+        """G2P, then the one read-back of the step: speed, non-finite count and bounds (crack particles included:
+        their update ran before and left their figures in the statistics)."""
+        m, a, d = solver.model, solver.a, solver.m
+        if not (solver.plan.fracture and len(solver.crack_index)):
+            launch(reset_stats, 1, self.dev_stats)
+        launch(g2p_kernel, m.n_particles, a.grid, dt, d.origin, 1.0 / m.dx, state.time + dt, d.colliders, d.pin_mask,
+               d.pin_velocity, d.pin_stop, a.particle_crack, a.particle_x, a.particle_v, a.particle_C,
+               self.dev_stats)
+        self.dev_stats.copy_to_host(self.stats)
+        return float(self.stats[STAT_VMAX]), int(self.stats[STAT_BAD])
+
+    def crack(self, solver, state, dt) -> tuple[float, int]:
+        """Crack particles: their contact (serial, on one thread) and update; their speeds and positions open this
+        step's statistics, which G2P completes and reads back."""
+        m, a, d, e = solver.model, solver.a, solver.m, self.extra
+        launch(crack_contact_kernel, 1, a.grid, dt, d.gravity, d.origin, 1.0 / m.dx, e.crack_index,
+               a.particle_damage, d.particle_mass, d.particle_volume, a.particle_force, a.particle_x, a.particle_v)
+        launch(reset_stats, 1, self.dev_stats)
+        launch(crack_update_kernel, len(solver.crack_index), dt, state.time + dt, d.colliders, e.valid_lo,
+               e.valid_hi, e.crack_index, a.particle_x, a.particle_v, a.particle_C, self.dev_stats)
+        return 0.0, 0  # read back with G2P's
+
+    def inactive_fraction(self, solver, state):
+        m, a, e = solver.model, solver.a, self.extra
+        launch(zero_cells, a.cell_bonds.shape[0], a.cell_bonds, a.cell_broken)
+        launch(count_cells, m.n_particles, a.particle_x, solver.m.origin, 1.0 / m.dx, e.cells, a.bond_start,
+               a.bond_active, a.cell_bonds, a.cell_broken)
+        launch(cell_fraction, m.n_particles, a.particle_x, solver.m.origin, 1.0 / m.dx, e.cells, a.cell_bonds,
+               a.cell_broken, a.particle_inactive)
+
+    def crack_particles_changed(self, solver, state):
+        setattr(self.extra, "crack_index", cuda.to_device(solver.crack_index))

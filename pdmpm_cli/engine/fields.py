@@ -1,0 +1,67 @@
+"""Declarations of the arrays a run allocates: where each lives (per particle, per bond, on the grid), its shape,
+dtype and initial value. The engine's own features declare theirs here; a material declares its own in its module
+(MaterialKind.fields). The Plan picks the declarations a scene needs; State.allocate allocates exactly those,
+checkpoints carry every one that is not transient, and family rebuilds carry every per-bond one."""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+PARTICLE, BOND, GRID, CSR = "particle", "bond", "grid", "csr"
+
+
+@dataclass(frozen=True)
+class Field:
+    """One array: name (`<location>_<quantity>`), location, trailing shape, dtype and initial value."""
+
+    name: str
+    where: str  # PARTICLE (n, *tail), BOND (n_bonds, *tail), GRID (shape given by the Plan) or CSR (n + 1)
+    tail: tuple[int, ...] = ()
+    dtype: str = "f8"
+    fill: float = 0.0
+    transient: bool = False  # refilled every step before it is read: neither checkpointed nor carried
+    stand_in: int = 0  # rows of the stand-in (kernels that index a row they never use need 1)
+    doc: str = ""
+
+    def empty(self) -> np.ndarray:
+        """The (stand_in, *tail) stand-in kernels receive when the scene does not allocate this array; kernels
+        test `shape[0] > 0` (or a parameter, for stand-ins with a row) once, outside their loops."""
+        return np.zeros((self.stand_in,) + self.tail, dtype=self.dtype)
+
+
+# Every run.
+CORE = (
+    Field("particle_x", PARTICLE, (3,), doc="position [m]"),
+    Field("particle_v", PARTICLE, (3,), doc="velocity [m/s]"),
+    Field("particle_C", PARTICLE, (3, 3), doc="APIC affine velocity matrix [1/s]"),
+    Field("particle_force", PARTICLE, (3,), transient=True, doc="bond force f_p of the step (eqs. 2, 7) [N]"),
+    Field("bond_start", CSR, dtype="i8", doc="CSR family offsets (n + 1 entries); flowing bodies rebuild them"),
+    Field("bond_nbr", BOND, dtype="i4", doc="CSR family members"),
+)
+GRIDS = (
+    Field("grid", GRID, transient=True, doc="node mass, then momentum / velocity"),
+    Field("grid_private", GRID, transient=True, doc="per-thread P2G scatter targets (CPU)"),
+)
+# Reference bond factors, computed once: the Fbar pass and the pair pass read them.
+BOND_FACTORS = (
+    Field("bond_wv", BOND, doc="w(|xi|) V_q, eq. 4's weight times the neighbour's volume [m^3]"),
+    Field("bond_inv_len", BOND, doc="1 / |xi| [1/m]"),
+)
+FBAR = (Field("particle_Fbar", PARTICLE, (3, 3), transient=True, stand_in=1,
+              doc="averaged deformation gradient (eq. 4) [-]; read only where mu > 0"),) + BOND_FACTORS
+# Bond passes that evaluate each pair once and scatter (the elastic and plastic forces).
+PAIR = (Field("particle_force_private", GRID, transient=True, doc="per-thread pair-force scatter targets (CPU) [N]"),
+        ) + BOND_FACTORS
+FRACTURE = (
+    Field("bond_active", BOND, dtype="u1", fill=1, doc="1 intact, 0 broken (section 6)"),
+    Field("particle_damage", PARTICLE, doc="broken / initial bonds [-]"),
+    Field("particle_crack", PARTICLE, dtype="u1", doc="1: crack-surface particle, integrated off the grid"),
+    Field("particle_inactive", PARTICLE, transient=True, doc="p_inactive of eq. 21 [-]"),
+    Field("particle_lmax", PARTICLE, transient=True, doc="largest eq. 21 criterion over the particle's bonds [-]"),
+    Field("particle_bmax", PARTICLE, dtype="i8", transient=True, doc="its bond index"),
+)
+# The GPU counts eq. 21's bonds per cell with atomics into dense cell arrays (the CPU sorts cell keys instead).
+FRACTURE_CELLS = (
+    Field("cell_bonds", GRID, dtype="i8", transient=True, doc="bonds of the particles in each cell (eq. 21)"),
+    Field("cell_broken", GRID, dtype="i8", transient=True, doc="broken bonds of the particles in each cell"),
+)

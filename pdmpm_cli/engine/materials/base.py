@@ -1,0 +1,36 @@
+"""What a material is to the engine: one MaterialKind per module, listed once in the registry (materials/__init__).
+
+A material module holds everything about its material: its scene section (`Schema`, a pydantic model whose
+fields carry their SI units), its typed parameters (`params(section)`: a frozen dataclass the kernels read), the
+per-particle and per-bond arrays it needs (declared once as `Field`s: allocated, checkpointed and carried through
+family rebuilds from that declaration), its per-particle formulae with their CPU loops (`Kernel`s, which the CUDA
+backend compiles for the GPU from the same source), its hooks in the step, its outputs and its effective constants.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from pdmpm_cli.engine.fields import Field
+
+
+@dataclass(frozen=True, eq=False)
+class MaterialKind:
+    """One material: hooks are fn(solver, body, dt) with body an index into solver.model.bodies; kernels read the
+    backend's arrays (solver.a) and launch through solver.backend.run(kernel, start, end, *args)."""
+
+    name: str  # the scene's `model:` value
+    schema: type  # pydantic model of the scene's `material:` section (model: Literal[name], density, ...)
+    params: Callable[[Any], Any]  # validated section -> typed parameters (frozen dataclass of floats)
+    forces: Callable  # writes solver.a.particle_force over the body's particles (eqs. 2, 7)
+    constants: Callable[[Any], dict]  # params -> effective isotropic constants (p_wave_modulus, wave_speed, ...)
+    energy: Callable | None = None  # (solver, body) -> stored strain energy [J] on the host State (Fbar current)
+    fields: tuple[Field, ...] = ()  # the material's own arrays
+    before_forces: Callable | None = None  # e.g. the plastic return map
+    after_forces: Callable | None = None  # e.g. rebuilding the families of a flowing body
+    start: Callable | None = None  # (solver, body): initial values of its arrays, on the host State
+    outputs: dict[str, Callable] = field(default_factory=dict)  # frame field name -> fn(model, state) -> array
+    uses_fbar: Callable[[Any], bool] = lambda params: False  # whether its forces read Fbar (eq. 4)
+    runs_as: Callable[[Any], str] | None = None  # section -> the registry entry that runs it (a plastic body that
+    # can never yield runs as elastic); None: itself

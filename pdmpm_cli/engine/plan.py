@@ -1,0 +1,53 @@
+"""What a run will do and allocate, decided once before any step (pdmpm_cli.plan.make_plan decides it from a scene).
+
+The Solver reads the switches (`fbar`, `fracture`) and never tests a material's type: a step a scene does not
+need is absent. `phases` lists the step's phases for people (`pdmpm validate --explain`, run.h5)."""
+
+from dataclasses import asdict, dataclass
+
+
+@dataclass(frozen=True)
+class BodyPlan:
+    name: str
+    model: str  # registry entry the body runs (a plastic body that cannot yield runs as elastic)
+    particles: int
+    bonds: int
+    spacing: float  # h [m]
+    horizon: float  # delta [m]
+    effective: dict  # effective isotropic constants of the calibration [Pa, -, m/s]
+    dt_bond: float  # bond bound, before the safety factor [s]
+
+
+@dataclass(frozen=True)
+class Plan:
+    phases: tuple[str, ...]
+    fields: dict  # name -> (shape, dtype) of every per-particle, per-bond or grid array the run allocates
+    bodies: tuple[BodyPlan, ...]
+    particles: int
+    bonds: int
+    grid_nodes: tuple[int, int, int]
+    cell_size: float
+    frames: int
+    frame_dt: float
+    dt_user: float | None
+    dt_cfl: float  # cfl dx / wave speed, at rest [s]
+    dt_bond: float  # bond_safety * min over particles of the bond bound [s]
+    dt_max: float  # the largest step the solver will take [s]
+    binding: str  # which bound sets dt_max: user, cfl, bonds or frame
+    dt_reduced: bool  # the user's dt was above a bound and was reduced
+    wave_speed: float  # fastest P-wave speed over bodies [m/s]
+    memory_bytes: int
+    notes: tuple[str, ...] = ()  # what loading changed in the input (a flipped mesh, welded vertices)
+    backend: str = "cpu"  # simulation.backend: cpu or cuda
+    fbar: bool = False  # some body's forces read Fbar (eq. 4)
+    fracture: bool = False  # some body can fracture (section 6): crack particles and the fracture pass
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def warnings(self) -> list[str]:
+        out = list(self.notes)
+        if self.dt_reduced:
+            out.append(f"simulation.dt = {self.dt_user:.3g} s is above the stability bound; using {self.dt_max:.3g} s "
+                       f"(CFL bound {self.dt_cfl:.3g} s, bond bound {self.dt_bond:.3g} s)")
+        return out
