@@ -91,14 +91,14 @@ def run(
     console.print(f"{prep.scene.name}: {plan.particles} particles, {plan.bonds} bonds, {plan.frames} frames, "
                   f"dt <= {plan.dt_max:.3g} s on {plan.backend} -> {out}")
     if ckpt is not None:
-        console.print(f"resuming from frame {ckpt.frame} (t = {ckpt.attrs['time']:.6g} s, "
-                      f"step {ckpt.attrs['step']}); frames after it are written again")
+        console.print(f"resuming from frame {ckpt.frame} (t = {ckpt.attrs['state_time']:.6g} s, "
+                      f"step {ckpt.attrs['state_step']}); frames after it are written again")
         if ckpt.attrs["threads"] != numba.get_num_threads():
             console.print(f"[yellow]warning:[/] the run started with {ckpt.attrs['threads']} Numba threads, this one "
                           f"has {numba.get_num_threads()}: the frames will differ from an uninterrupted run in the "
                           f"last bits (set NUMBA_NUM_THREADS={ckpt.attrs['threads']} for identical ones)")
     reporter = None if quiet else RichReporter(console)
-    first_step = ckpt.attrs["step"] if ckpt else 0
+    first_step = ckpt.attrs["state_step"] if ckpt else 0
     t0 = time.perf_counter()
     try:
         state = simulate(prep, out, reporter, overwrite=overwrite, resume=ckpt)
