@@ -62,7 +62,7 @@ def build_model(scene: Scene, disc: Discretization) -> Model:
         rest_x=disc.rest_x, particle_volume=disc.volume, particle_mass=disc.mass, particle_body=disc.body,
         bond_start=disc.bond_start, bond_nbr=disc.bond_nbr, particle_Kinv=kinv,
         particle_coef=calibration_coefficients(omega, disc.body, disc.body_horizon), particle_omega=omega,
-        pin_mask=disc.pin_mask.astype(np.uint8), pin_velocity=disc.pin_velocity, pin_stop=disc.pin_stop,
+        pin_mask=disc.pin_mask, pin_velocity=disc.pin_velocity, pin_stop=disc.pin_stop,
         bodies=body_params(scene, disc),
         colliders=collider_table(scene.colliders), gravity=np.asarray(scene.gravity, dtype=np.float64),
         wind_velocity=np.asarray(scene.wind.velocity if scene.wind else (0.0, 0.0, 0.0), dtype=np.float64),

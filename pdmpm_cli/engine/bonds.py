@@ -69,28 +69,38 @@ def drop_bonds(bond_start: np.ndarray, bond_nbr: np.ndarray, keep: np.ndarray) -
     return new_start, bond_nbr[keep]
 
 
+@njit(cache=True, inline="always")
+def invert3(a00, a01, a02, a10, a11, a12, a20, a21, a22, out):
+    """out = the inverse of the 3 x 3 matrix a (adjugate over determinant; no LAPACK: it compiles in a fraction of
+    the time)."""
+    c00, c01, c02 = a11 * a22 - a12 * a21, a12 * a20 - a10 * a22, a10 * a21 - a11 * a20
+    inv_det = 1.0 / (a00 * c00 + a01 * c01 + a02 * c02)
+    out[0, 0], out[0, 1], out[0, 2] = c00 * inv_det, (a02 * a21 - a01 * a22) * inv_det, (a01 * a12 - a02 * a11) * inv_det
+    out[1, 0], out[1, 1], out[1, 2] = c01 * inv_det, (a00 * a22 - a02 * a20) * inv_det, (a02 * a10 - a00 * a12) * inv_det
+    out[2, 0], out[2, 1], out[2, 2] = c02 * inv_det, (a01 * a20 - a00 * a21) * inv_det, (a00 * a11 - a01 * a10) * inv_det
+
+
 @njit(cache=True)
 def invert_shape_tensor(k, out):
     """out = K^-1, or the inverse of K + EPS tr(K) I when K is rank-deficient (shells, cloth)."""
     tr = k[0, 0] + k[1, 1] + k[2, 2]
     if tr <= 0.0:
-        out[:, :] = 0.0
-        return
-    det = np.linalg.det(k)
-    if det <= RANK_TOL * (tr / 3.0) ** 3:
-        reg = k.copy()
         for a in range(3):
-            reg[a, a] += EPS * tr
-        out[:, :] = np.linalg.inv(reg)
-    else:
-        out[:, :] = np.linalg.inv(k)
+            for c in range(3):
+                out[a, c] = 0.0
+        return
+    det = (k[0, 0] * (k[1, 1] * k[2, 2] - k[1, 2] * k[2, 1]) - k[0, 1] * (k[1, 0] * k[2, 2] - k[1, 2] * k[2, 0])
+           + k[0, 2] * (k[1, 0] * k[2, 1] - k[1, 1] * k[2, 0]))
+    reg = EPS * tr if det <= RANK_TOL * (tr / 3.0) ** 3 else 0.0
+    invert3(k[0, 0] + reg, k[0, 1], k[0, 2], k[1, 0], k[1, 1] + reg, k[1, 2], k[2, 0], k[2, 1], k[2, 2] + reg, out)
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True)
 def reference_family_terms(rest_x, particle_volume, bond_start, bond_nbr, particle_body, body_horizon,
                            particle_omega, particle_Kinv):
-    """Weighted volume omega_p = sum_q w V_q and the inverse shape tensor K_p^-1 (eq. 4, second factor)."""
-    for p in prange(rest_x.shape[0]):
+    """Weighted volume omega_p = sum_q w V_q and the inverse shape tensor K_p^-1 (eq. 4, second factor). Once per
+    run, serial: a parallel loop would cost more to compile than it saves."""
+    for p in range(rest_x.shape[0]):
         delta = body_horizon[particle_body[p]]
         k = np.zeros((3, 3))
         om = 0.0
@@ -116,12 +126,12 @@ def chunk_width(bond_start, lo, hi):
     return width
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True)
 def bond_reference_terms(rest_x, particle_volume, bond_start, bond_nbr, particle_body, body_horizon, bond_wv,
                          bond_inv_len):
     """Per bond p -> q, the reference factors the bond passes reuse every step: w(|xi|) V_q (eq. 4's weight times
-    the neighbour's volume) -> bond_wv and 1 / |xi| -> bond_inv_len."""
-    for p in prange(rest_x.shape[0]):
+    the neighbour's volume) -> bond_wv and 1 / |xi| -> bond_inv_len. Once per run, serial."""
+    for p in range(rest_x.shape[0]):
         delta = body_horizon[particle_body[p]]
         for b in range(bond_start[p], bond_start[p + 1]):
             q = bond_nbr[b]
@@ -214,13 +224,14 @@ def calibration_coefficients(particle_omega, particle_body, body_horizon):
     return coef
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True)
 def bond_time_steps(rest_x, particle_volume, bond_start, bond_nbr, particle_body, body_horizon, body_modulus,
                     body_density, particle_coef, out):
-    """Per-particle critical step sqrt(2 rho / sum_q k_pq / V_p) (Silling & Askari 2005) for our bonds.
+    """Per-particle critical step sqrt(2 rho / sum_q k_pq / V_p) (Silling & Askari 2005) for our bonds (once per
+    run, serial).
 
     k_pq = (c_p + c_q) w M V_p V_q / |xi|^2 is the axial stiffness of bond p-q under eqs. 6-7."""
-    for p in prange(rest_x.shape[0]):
+    for p in range(rest_x.shape[0]):
         body = particle_body[p]
         delta = body_horizon[body]
         k = 0.0

@@ -43,7 +43,7 @@ class Model:
     particle_Kinv: np.ndarray  # (n, 3, 3) inverse shape tensor, eq. 4
     particle_coef: np.ndarray  # (n,) calibration c_p = 5 / omega_p
     particle_omega: np.ndarray  # (n,) weighted volume sum_q w V_q [m^3]
-    pin_mask: np.ndarray  # (n,) u1, or (0,) without pins
+    pin_mask: np.ndarray  # (n,) bool, or (0,) without pins
     pin_velocity: np.ndarray  # (n, 3) [m/s], or (0, 3)
     pin_stop: np.ndarray  # (n,) time each pin stops [s] (inf: never), or (0,)
     bodies: tuple[BodyParams, ...]

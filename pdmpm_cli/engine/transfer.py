@@ -63,24 +63,21 @@ def scatter_node(g, i, j, k, m, p0, p1, p2):
     g[i, j, k, 3] += p2
 
 
-@njit(parallel=True, cache=True)
-def position_bounds(particle_x, chunks):
-    """Per-axis smallest and largest particle position, (lo, hi): the extent the P2G node box covers. One pass over
-    particle_x in static chunks (numpy's axis reductions over an (n, 3) array walk it three times, strided)."""
-    n = particle_x.shape[0]
-    lo = np.full((chunks, 3), np.inf)
-    hi = np.full((chunks, 3), -np.inf)
-    for t in prange(chunks):
-        for p in range(t * n // chunks, (t + 1) * n // chunks):
-            for a in range(3):
-                lo[t, a] = min(lo[t, a], particle_x[p, a])
-                hi[t, a] = max(hi[t, a], particle_x[p, a])
-    out_lo = np.empty(3)
-    out_hi = np.empty(3)
-    for a in range(3):
-        out_lo[a] = lo[:, a].min()
-        out_hi[a] = hi[:, a].max()
-    return out_lo, out_hi
+@njit(cache=True)
+def position_bounds(particle_x):
+    """Per-axis smallest and largest particle position, (lo, hi): the extent the P2G node box covers. One serial pass
+    over particle_x (numpy's axis reductions over an (n, 3) array walk it three times, strided; a parallel loop
+    costs more to compile than the few milliseconds it would save at a million particles)."""
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for p in range(particle_x.shape[0]):
+        for a in range(3):
+            x = particle_x[p, a]
+            if x < lo[a]:
+                lo[a] = x
+            if x > hi[a]:
+                hi[a] = x
+    return lo, hi
 
 
 @njit(cache=True)
@@ -134,7 +131,11 @@ def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, parti
     outside = 0
     for t in prange(nt):
         g = grid_private[t]
-        g[box[0]:box[1], box[2]:box[3], box[4]:box[5], :] = 0.0
+        for i in range(box[0], box[1]):
+            for j in range(box[2], box[3]):
+                for k in range(box[4], box[5]):
+                    for q in range(4):
+                        g[i, j, k, q] = 0.0
         wx = np.empty(4)
         wy = np.empty(4)
         wz = np.empty(4)

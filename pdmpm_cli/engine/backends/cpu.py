@@ -33,7 +33,7 @@ class CpuBackend:
 
     def node_box(self, solver, state) -> np.ndarray:
         """Node index box [i0, i1) x [j0, j1) x [k0, k1) touched by the particles' B-spline stencils."""
-        lo, hi = position_bounds(state.particle_x, particle_chunks())
+        lo, hi = position_bounds(state.particle_x)
         return solver.box_of(lo, hi)
 
     def p2g(self, solver, state, dt) -> int:

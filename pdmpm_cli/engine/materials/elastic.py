@@ -149,7 +149,8 @@ def elastic_forces(start, end, lam, mu, particle_x, rest_x, particle_volume, bon
     nt, n = force_private.shape[0], end - start
     for t in prange(nt):
         f = force_private[t]
-        f[start:end, :] = 0.0
+        for p in range(start, end):
+            f[p, 0] = f[p, 1] = f[p, 2] = 0.0
         lo, hi = start + t * n // nt, start + (t + 1) * n // nt
         width = chunk_width(bond_start, lo, hi)
         s = np.zeros((13, width))  # eta, Ybar_p, Ybar_q (3 each), w V_q, 1 / |xi|, c_q, 1 + e_p
@@ -235,15 +236,16 @@ def pair_forces_cpu(start, end, lam, mu, particle_x, rest_x, particle_volume, bo
 ELASTIC_FORCES = Kernel(elastic_force_at, pair_forces_cpu)
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True)
 def elastic_energy(start, end, lam, mu, delta, particle_x, rest_x, particle_volume, bond_start, bond_nbr,
                    bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar):
-    """Total strain energy sum_p W_p V_p (eq. 5, normalised; elastic strains only) of particles start..end-1 [J]."""
+    """Total strain energy sum_p W_p V_p (eq. 5, normalised; elastic strains only) of particles start..end-1 [J].
+    Once per frame (the blow-up check), serial."""
     has_active = bond_active.shape[0] > 0
     has_crack = particle_crack.shape[0] > 0
     has_ep = bond_ep.shape[0] > 0
     total = 0.0
-    for p in prange(start, end):
+    for p in range(start, end):
         fp = particle_Fbar[p if mu > 0.0 else 0]
         wsum = 0.0
         for b in range(bond_start[p], bond_start[p + 1]):
