@@ -10,6 +10,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from pdmpm_cli.errors import InputError
+from pdmpm_cli.geometry import bvh as B
 from pdmpm_cli.geometry import mesh as M
 from pdmpm_cli.geometry import sampling as S
 from pdmpm_cli.geometry import shapes as G
@@ -281,7 +282,7 @@ def test_unit_cube_obj_quads():
     p = RNG.uniform(-0.5, 1.5, (20000, 3))
     away = np.all(np.abs(p - 0.5) < 0.49, axis=1) | np.any(np.abs(p - 0.5) > 0.51, axis=1)
     expect = np.all((p >= 0) & (p <= 1), axis=1)
-    assert np.array_equal(M.inside_mesh(m, p[away]), expect[away])
+    assert np.array_equal(B.inside_mesh(m, p[away]), expect[away])
 
 
 def test_polygon_faces_are_fan_triangulated(tmp_path):
@@ -303,7 +304,7 @@ def test_mesh_placement_scale_rotate_translate():
     assert math.isclose(M.mesh_volume(m), 8.0)
     lo, hi = M.mesh_bounds(m)  # x = R (2 x_file) + t: x in [8, 10], y in [0, 2]
     assert np.allclose(lo, [8, 0, 0]) and np.allclose(hi, [10, 2, 2])
-    assert M.inside_mesh(m, [[9.0, 1.0, 1.0], [11.0, 1.0, 1.0]]).tolist() == [True, False]
+    assert B.inside_mesh(m, [[9.0, 1.0, 1.0], [11.0, 1.0, 1.0]]).tolist() == [True, False]
     m2 = M.load_surface_mesh(CUBE_OBJ, scale=(1.0, 2.0, 3.0))
     assert math.isclose(M.mesh_volume(m2), 6.0)
     with pytest.raises(InputError, match="scale"):
@@ -322,10 +323,10 @@ def test_icosphere_formats_inside_and_volume(tmp_path, ext):
     p = [1.0, 2.0, 3.0] + RNG.uniform(-0.7, 0.7, (20000, 3))
     r = np.linalg.norm(p - [1.0, 2.0, 3.0], axis=1)
     away = np.abs(r - 0.5) > 0.01  # the polyhedron deviates < 0.003 from the sphere
-    assert np.array_equal(M.inside_mesh(m, p[away]), r[away] < 0.5)
+    assert np.array_equal(B.inside_mesh(m, p[away]), r[away] < 0.5)
     # fill with jittered points: volume within 3 % of the mesh volume
     lo, hi = M.mesh_bounds(m)
-    pts = S.fill_shape(lambda q: M.inside_mesh(m, q), lo, hi, 0.02, sampling="jittered",
+    pts = S.fill_shape(lambda q: B.inside_mesh(m, q), lo, hi, 0.02, sampling="jittered",
                        rng=np.random.default_rng(3))
     assert abs(pts.shape[0] * 0.02**3 / vol - 1) < 0.03
 
@@ -355,7 +356,7 @@ def test_inverted_cube_is_flipped(tmp_path):
     m = M.load_surface_mesh(write(tmp_path / "inv.obj", V, T[:, ::-1]))
     assert math.isclose(M.mesh_volume(m), 1.0)
     assert any("flipped" in r for r in m.repairs)
-    assert M.inside_mesh(m, [[0.5, 0.5, 0.5], [1.5, 0.5, 0.5]]).tolist() == [True, False]
+    assert B.inside_mesh(m, [[0.5, 0.5, 0.5], [1.5, 0.5, 0.5]]).tolist() == [True, False]
 
 
 def test_cube_with_missing_face_not_closed(tmp_path):
@@ -416,26 +417,26 @@ def test_hierarchical_winding_number_equals_bruteforce():
         normal /= np.linalg.norm(normal, axis=1)[:, None]
         near = np.vstack([near + 1e-7 * normal, near - 1e-7 * normal, Vv + 1e-6])  # ... just off them
         P = np.vstack([far, near])
-        w = M.winding_number(m, P)
-        wb = M._winding_number_bruteforce(P, m.vertices, m.triangles)
+        w = B.winding_number(m, P)
+        wb = B._winding_number_bruteforce(P, m.vertices, m.triangles)
         assert np.abs(w - wb).max() < 1e-9
         n = near.shape[0] - Vv.shape[0]
-        assert np.all(M.inside_mesh(m, near[n // 2: n]))
-        assert not np.any(M.inside_mesh(m, near[: n // 2]))
+        assert np.all(B.inside_mesh(m, near[n // 2: n]))
+        assert not np.any(B.inside_mesh(m, near[: n // 2]))
 
 
 def test_torus_hole_and_cavity():
     V, T = torus()
     Vv, Tv, _ = M.validate_surface(V, T, "torus")
     m = M.SurfaceMesh(Vv, Tv)
-    assert M.inside_mesh(m, [[0, 0, 0], [1.0, 0, 0], [0, -1.0, 0.1], [1.5, 0, 0]]).tolist() == [False, True, True, False]
+    assert B.inside_mesh(m, [[0, 0, 0], [1.0, 0, 0], [0, -1.0, 0.1], [1.5, 0, 0]]).tolist() == [False, True, True, False]
     # cube with an inner, inverted cube: a cavity
     Vo, To = cube_tris(0.0, 1.0)
     Vi, Ti = cube_tris(0.25, 0.75)
     Vc, Tc, rep = M.validate_surface(np.vstack([Vo, Vi]), np.vstack([To, Ti[:, ::-1] + 8]), "hollow")
     hollow = M.SurfaceMesh(Vc, Tc)
     assert math.isclose(M.mesh_volume(hollow), 1.0 - 0.125) and rep == []
-    assert M.inside_mesh(hollow, [[0.5, 0.5, 0.5], [0.1, 0.5, 0.5]]).tolist() == [False, True]
+    assert B.inside_mesh(hollow, [[0.5, 0.5, 0.5], [0.1, 0.5, 0.5]]).tolist() == [False, True]
 
 
 @pytest.mark.slow
@@ -445,11 +446,11 @@ def test_winding_number_benchmark():
     m = M.SurfaceMesh(Vv, Tv)
     assert m.n_triangles == 10_000
     P = RNG.uniform([-1.5, -1.5, -0.5], [1.5, 1.5, 0.5], (100_000, 3))
-    M.winding_number(m, P[:10])  # compile / load the cache, build the hierarchy
+    B.winding_number(m, P[:10])  # compile / load the cache, build the hierarchy
     t0 = time.perf_counter()
-    w = M.winding_number(m, P)
+    w = B.winding_number(m, P)
     dt = time.perf_counter() - t0
     print(f"\nwinding number: {P.shape[0]} points x {m.n_triangles} triangles: {dt:.2f} s")
-    wb = M._winding_number_bruteforce(P[:1000], m.vertices, m.triangles)
+    wb = B._winding_number_bruteforce(P[:1000], m.vertices, m.triangles)
     assert np.abs(w[:1000] - wb).max() < 1e-9
     assert dt < 10.0

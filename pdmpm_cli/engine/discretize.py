@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 
 from pdmpm_cli.engine.bonds import build_families, drop_bonds
 from pdmpm_cli.errors import InputError
-from pdmpm_cli.geometry import bunny, sampling, shapes, shell, voronoi
+from pdmpm_cli.geometry import bunny, bvh, embed, primitive_surfaces, sampling, shapes, shell, voronoi
 from pdmpm_cli.geometry import mesh as meshes
 from pdmpm_cli.scene.schema import Scene
 
@@ -37,7 +37,7 @@ def shape_region(shape, base_dir: Path) -> Region:
     if shape.type == "mesh":
         mesh = load_mesh_shape(shape, base_dir)
         lo, hi = meshes.mesh_bounds(mesh)
-        return Region(lambda p: meshes.inside_mesh(mesh, p), lo, hi)
+        return Region(lambda p: bvh.inside_mesh(mesh, p), lo, hi)
     if shape.type == "sheet":
         raise InputError("a sheet has no inside: use it as the surface of a `mode: shell` body")
     c = np.asarray(shape.center, dtype=np.float64)
@@ -116,7 +116,7 @@ class BodySample:
 
 
 def primitive_kwargs(shape) -> dict:
-    """Size parameters of a primitive shape, as shell.primitive_surface takes them."""
+    """Size parameters of a primitive shape, as primitive_surfaces.primitive_surface takes them."""
     names = {"box": ("size",), "sheet": ("size",), "sphere": ("radius",), "cylinder": ("radius", "height"),
              "capsule": ("radius", "length")}[shape.type]
     return {k: getattr(shape, k) for k in names}
@@ -155,7 +155,7 @@ def body_surface(shape, base_dir: Path, edge: float, allow_open: bool) -> meshes
     R = shapes.rotation_matrix(getattr(shape, "rotation", (0.0, 0.0, 0.0)))
     if shape.type == "bunny":
         return bunny.bunny_surface(c, shape.height, R, edge)
-    return shell.primitive_surface(shape.type, center=c, R=R, edge=edge, **primitive_kwargs(shape))
+    return primitive_surfaces.primitive_surface(shape.type, center=c, R=R, edge=edge, **primitive_kwargs(shape))
 
 
 def sample_shell(body, base_dir: Path, dx: float, rng) -> BodySample:
@@ -166,7 +166,7 @@ def sample_shell(body, base_dir: Path, dx: float, rng) -> BodySample:
     sample = shell.shell_particles(surface, h, geo.layers, rng, what=f"body '{body.name}'",
                                    first_depth=0.5 if geo.layers > 1 else 0.0)
     sample = shell.thin_crowded(sample, h)
-    idx, w = shell.embed_points(surface.vertices, sample.points)
+    idx, w = embed.embed_points(surface.vertices, sample.points)
     mesh = EmbeddedMesh(body.name, -1, "surface", surface.vertices, surface.triangles, idx, w,
                         np.zeros(0, np.int64))
     repairs = list(surface.repairs)

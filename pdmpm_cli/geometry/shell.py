@@ -1,12 +1,5 @@
 """Shell geometry (paper section 7): material points on a surface and in layers under it.
 
-Primitive surfaces (:func:`primitive_surface`)
-    Built-in shapes triangulated with edges about ``edge`` long, outward-oriented and
-    validated like a mesh file: the sheet is a regular grid (open), the box a regular grid on
-    each face, the sphere, cylinder and capsule are surfaces of revolution: rings of about
-    ``2 pi rho / edge`` vertices spaced ``edge`` along the profile, adjacent rings zipped
-    together by angle (a single vertex at the poles / cap centres).
-
 Sampling (:func:`shell_particles`)
     Layer 0 is a blue-noise set on the surface: uniform area-weighted candidates (about
     ``CANDIDATES_PER_POINT`` per wanted point) are accepted in random order when no accepted
@@ -43,9 +36,8 @@ Sampling (:func:`shell_particles`)
     surface (A_k is then taken at the slab centre, so the total approximates the shell's own
     volume instead of one reaching h/2 outside).
 
-Embedding (:func:`embed_points`)
-    Mesh vertices are tied to their k nearest particles with Wendland C2 weights, so that the
-    animated surface can follow the particles' motion and deformation.
+The surfaces of built-in shapes come from :mod:`pdmpm_cli.geometry.primitive_surfaces`; the vertices of
+the surface are tied to the particles by :mod:`pdmpm_cli.geometry.embed`.
 """
 
 from __future__ import annotations
@@ -54,28 +46,18 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 from scipy.spatial import cKDTree
 
 from pdmpm_cli.errors import InputError
-from pdmpm_cli.geometry.mesh import (
-    SurfaceMesh,
-    _fmt_point,
-    _hierarchy,
-    _weld,
-    inside_mesh,
-    is_closed,
-    validate_surface,
-)
-from pdmpm_cli.geometry.shapes import _positive, _rotation, _size3, _vec3
+from pdmpm_cli.geometry.bvh import inside_mesh, ray_hits
+from pdmpm_cli.geometry.mesh import SurfaceMesh, _fmt_point
+from pdmpm_cli.geometry.shapes import _positive
 
-__all__ = ["PRIMITIVES", "ShellSample", "primitive_surface", "shell_particles", "thin_crowded", "embed_points"]
+__all__ = ["ShellSample", "shell_particles", "thin_crowded"]
 
-PRIMITIVES = ("sheet", "box", "sphere", "cylinder", "capsule")
 #: refuse shells with more material points than this
 MAX_POINTS = 5_000_000
-#: refuse primitive surfaces with more triangles than this
-MAX_TRIANGLES = 20_000_000
 #: minimum distance between layer-0 points, in units of h
 MIN_SEPARATION = 0.6
 #: uniform candidates drawn per wanted layer-0 point (more: closer to a maximal packing)
@@ -92,174 +74,6 @@ OFFSET_CG_ITERATIONS = 1000
 MIN_INNER_GAP = 0.5
 _CHUNK = 1 << 20
 
-
-# ----------------------------------------------------------------------------------------
-# primitive surfaces
-# ----------------------------------------------------------------------------------------
-def _grid_face(o, U, W, nu: int, nw: int) -> tuple[np.ndarray, np.ndarray]:
-    """Regular grid o + i/nu U + j/nw W, triangulated counter-clockwise about U x W."""
-    i, j = np.meshgrid(np.arange(nu + 1), np.arange(nw + 1), indexing="ij")
-    V = o + (i.reshape(-1, 1) / nu) * U + (j.reshape(-1, 1) / nw) * W
-    idx = lambda a, b: a * (nw + 1) + b  # noqa: E731
-    a, b = np.meshgrid(np.arange(nu), np.arange(nw), indexing="ij")
-    a, b = a.ravel(), b.ravel()
-    p00, p10, p11, p01 = idx(a, b), idx(a + 1, b), idx(a + 1, b + 1), idx(a, b + 1)
-    T = np.concatenate([np.stack([p00, p10, p11], 1), np.stack([p00, p11, p01], 1)])
-    return V, T.astype(np.int64)
-
-
-def _nseg(length: float, edge: float) -> int:
-    return max(1, int(round(length / edge)))
-
-
-def _box_local(size, edge) -> tuple[np.ndarray, np.ndarray]:
-    """Box centred at the origin: a grid on each face, shared edge vertices welded."""
-    a, b, c = size
-    na, nb, nc = _nseg(a, edge), _nseg(b, edge), _nseg(c, edge)
-    X, Y, Z = np.array([a, 0.0, 0.0]), np.array([0.0, b, 0.0]), np.array([0.0, 0.0, c])
-    lo = -0.5 * np.asarray(size)
-    faces = [  # (origin, U, W, nu, nw) with U x W = outward normal
-        (lo + X, Y, Z, nb, nc), (lo, Z, Y, nc, nb),
-        (lo + Y, Z, X, nc, na), (lo, X, Z, na, nc),
-        (lo + Z, X, Y, na, nb), (lo, Y, X, nb, na),
-    ]
-    Vs, Ts, off = [], [], 0
-    for o, U, W, nu, nw in faces:
-        V, T = _grid_face(o, U, W, nu, nw)
-        Vs.append(V)
-        Ts.append(T + off)
-        off += V.shape[0]
-    V, T = np.concatenate(Vs), np.concatenate(Ts)
-    V, T, _ = _weld(V, T, 1e-9 * float(np.linalg.norm(size)))
-    used, inv = np.unique(T, return_inverse=True)
-    return V[used], inv.reshape(T.shape).astype(np.int64)
-
-
-def _profile(kind: str, edge: float, radius: float, height: float, length: float) -> np.ndarray:
-    """(rho, z) points from the bottom pole to the top pole of a surface of revolution about z."""
-    pts: list[np.ndarray] = []
-
-    def arc(zc, phi0, phi1):
-        n = _nseg(abs(phi1 - phi0) * radius, edge)
-        phi = np.linspace(phi0, phi1, n + 1)
-        pts.append(np.stack([radius * np.cos(phi), zc + radius * np.sin(phi)], 1))
-
-    def line(p0, p1):
-        n = _nseg(float(np.hypot(p1[0] - p0[0], p1[1] - p0[1])), edge)
-        s = np.linspace(0.0, 1.0, n + 1)[:, None]
-        pts.append((1.0 - s) * np.asarray(p0) + s * np.asarray(p1))
-
-    if kind == "sphere":
-        arc(0.0, -0.5 * math.pi, 0.5 * math.pi)
-    elif kind == "cylinder":
-        z = 0.5 * height
-        line((0.0, -z), (radius, -z))
-        line((radius, -z), (radius, z))
-        line((radius, z), (0.0, z))
-    else:  # capsule
-        z = 0.5 * length
-        arc(-z, -0.5 * math.pi, 0.0)
-        if length > 0.0:
-            line((radius, -z), (radius, z))
-        arc(z, 0.0, 0.5 * math.pi)
-    P = np.concatenate(pts)
-    keep = np.ones(P.shape[0], bool)  # drop the repeated joints between pieces
-    keep[1:] = np.any(np.abs(np.diff(P, axis=0)) > 1e-12 * radius, axis=1)
-    P = P[keep]
-    P[0, 0] = P[-1, 0] = 0.0  # exact poles
-    return P
-
-
-def _revolve(profile: np.ndarray, edge: float) -> tuple[np.ndarray, np.ndarray]:
-    """Rings of vertices about z (outward for a profile going up), adjacent rings zipped by angle."""
-    V: list[np.ndarray] = []
-    rings: list[tuple[int, int, float]] = []  # (first vertex, count (1 = pole), angular offset)
-    off = 0
-    for j, (rho, z) in enumerate(profile):
-        if rho <= 0.0:
-            m, phase = 1, 0.0
-            V.append(np.array([[0.0, 0.0, z]]))
-        else:
-            m = max(3, int(round(2.0 * math.pi * rho / edge)))
-            phase = (j % 2) * math.pi / m  # stagger neighbouring rings
-            th = phase + 2.0 * math.pi * np.arange(m) / m
-            V.append(np.stack([rho * np.cos(th), rho * np.sin(th), np.full(m, z)], 1))
-        rings.append((off, m, phase))
-        off += m
-    T: list[tuple[int, int, int]] = []
-    for (a0, ma, pa), (b0, mb, pb) in zip(rings[:-1], rings[1:]):
-        na = 0 if ma == 1 else ma  # steps along each ring (none around a pole)
-        nb = 0 if mb == 1 else mb
-        i = j = 0
-        while i < na or j < nb:
-            next_a = pa + 2.0 * math.pi * (i + 1) / ma
-            next_b = pb + 2.0 * math.pi * (j + 1) / mb
-            A, B = a0 + i % ma, b0 + j % mb
-            if j >= nb or (i < na and next_a < next_b):
-                T.append((A, a0 + (i + 1) % ma, B))
-                i += 1
-            else:
-                T.append((A, b0 + (j + 1) % mb, B))
-                j += 1
-    return np.concatenate(V), np.asarray(T, dtype=np.int64)
-
-
-def primitive_surface(kind: str, *, center, R, edge: float, size=None, radius=None, height=None,
-                      length=None) -> SurfaceMesh:
-    """Triangulated surface of a built-in primitive with edges about `edge` long, outward-oriented.
-
-    kind: 'sheet' (OPEN flat rectangle, size=(a, b) full lengths along local x and y, normal =
-    local +z, centred at center), 'box' (size=(a, b, c)), 'sphere' (radius), 'cylinder'
-    (radius, height along local z, capped), 'capsule' (radius, length = distance between cap
-    centres along local z). R is a 3x3 rotation matrix (local axes = columns), applied about
-    the centre. Closed ones are validated like a mesh file; the sheet has ``closed=False``.
-    """
-    if kind not in PRIMITIVES:
-        raise InputError(f"unknown surface primitive {kind!r}; choose one of {', '.join(PRIMITIVES)}")
-    c = _vec3(center, "center")
-    M = _rotation(R)
-    e = _positive(edge, "edge")
-    what = f"{kind} surface"
-
-    def need(value, name):
-        if value is None:
-            raise InputError(f"{what}: {name} is required for a {kind}")
-        return value
-
-    if kind == "sheet":
-        s = need(size, "size=(a, b)")
-        try:
-            ab = np.asarray(s, dtype=np.float64).reshape(-1)
-        except (TypeError, ValueError):
-            ab = np.zeros(0)
-        if ab.shape != (2,) or not np.all(np.isfinite(ab)) or np.any(ab <= 0.0):
-            raise InputError(f"{what}: size must be 2 positive lengths (a, b) in metres, got {s!r}")
-        area = float(ab[0] * ab[1])
-    elif kind == "box":
-        abc = _size3(need(size, "size=(a, b, c)"))
-        area = 2.0 * float(abc[0] * abc[1] + abc[1] * abc[2] + abc[0] * abc[2])
-    else:
-        r = _positive(need(radius, "radius"), "radius")
-        hgt = _positive(need(height, "height"), "height") if kind == "cylinder" else 0.0
-        lng = _positive(need(length, "length"), "length", allow_zero=True) if kind == "capsule" else 0.0
-        area = 4.0 * math.pi * r * r + 2.0 * math.pi * r * (hgt + lng) + (2.0 * math.pi * r * r if hgt else 0.0)
-    n_tri = 2.3 * area / (e * e)  # ~ 2 triangles per edge^2 (rounded up for the ring zippers)
-    if n_tri > MAX_TRIANGLES:
-        raise InputError(
-            f"{what}: edge {e:g} m would give about {n_tri:,.0f} triangles (limit {MAX_TRIANGLES:,}); use an "
-            f"edge of at least {math.sqrt(2.3 * area / MAX_TRIANGLES):.3g} m"
-        )
-
-    if kind == "sheet":
-        V, T = _grid_face(np.array([-0.5 * ab[0], -0.5 * ab[1], 0.0]), np.array([ab[0], 0.0, 0.0]),
-                          np.array([0.0, ab[1], 0.0]), _nseg(ab[0], e), _nseg(ab[1], e))
-    elif kind == "box":
-        V, T = _box_local(abc, e)
-    else:
-        V, T = _revolve(_profile(kind, e, r, hgt, lng), e)
-    V = c + V @ M.T
-    V, T, repairs = validate_surface(V, T, what, allow_open=(kind == "sheet"))
-    return SurfaceMesh(V, T, "", repairs, closed=is_closed(T))
 
 
 # ----------------------------------------------------------------------------------------
@@ -490,68 +304,6 @@ def _blue_noise(V, T, area, n_target, h, rng):
 # ----------------------------------------------------------------------------------------
 # local thickness: first hit along the inward normal (rays against the mesh's BVH)
 # ----------------------------------------------------------------------------------------
-@njit(parallel=True, cache=True)
-def _first_hits(orig, dirs, V, Ts, node_lo, node_hi, start, end, left, pad, tmin):
-    """Distance along each ray to the first triangle beyond tmin (inf if none)."""
-    n = orig.shape[0]
-    out = np.empty(n)
-    for i in prange(n):
-        ox, oy, oz = orig[i, 0], orig[i, 1], orig[i, 2]
-        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
-        ix = 1.0 / dx if abs(dx) > 1e-300 else math.copysign(1e300, dx)
-        iy = 1.0 / dy if abs(dy) > 1e-300 else math.copysign(1e300, dy)
-        iz = 1.0 / dz if abs(dz) > 1e-300 else math.copysign(1e300, dz)
-        best = np.inf
-        stack = np.empty(128, np.int64)
-        stack[0] = 0
-        sp = 1
-        while sp > 0:
-            sp -= 1
-            k = stack[sp]
-            t0 = (node_lo[k, 0] - pad - ox) * ix
-            t1 = (node_hi[k, 0] + pad - ox) * ix
-            tn, tf = min(t0, t1), max(t0, t1)
-            t0 = (node_lo[k, 1] - pad - oy) * iy
-            t1 = (node_hi[k, 1] + pad - oy) * iy
-            tn, tf = max(tn, min(t0, t1)), min(tf, max(t0, t1))
-            t0 = (node_lo[k, 2] - pad - oz) * iz
-            t1 = (node_hi[k, 2] + pad - oz) * iz
-            tn, tf = max(tn, min(t0, t1)), min(tf, max(t0, t1))
-            if tf < max(tn, 0.0) or tn > best:
-                continue
-            if left[k] >= 0:
-                stack[sp] = left[k]
-                stack[sp + 1] = left[k] + 1
-                sp += 2
-                continue
-            for t in range(start[k], end[k]):
-                a, b, c = Ts[t, 0], Ts[t, 1], Ts[t, 2]
-                e1x, e1y, e1z = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
-                e2x, e2y, e2z = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
-                px = dy * e2z - dz * e2y
-                py = dz * e2x - dx * e2z
-                pz = dx * e2y - dy * e2x
-                det = e1x * px + e1y * py + e1z * pz
-                if det == 0.0:
-                    continue
-                idet = 1.0 / det
-                sx, sy, sz = ox - V[a, 0], oy - V[a, 1], oz - V[a, 2]
-                uu = (sx * px + sy * py + sz * pz) * idet
-                if uu < -1e-12 or uu > 1.0 + 1e-12:
-                    continue
-                qx = sy * e1z - sz * e1y
-                qy = sz * e1x - sx * e1z
-                qz = sx * e1y - sy * e1x
-                vv = (dx * qx + dy * qy + dz * qz) * idet
-                if vv < -1e-12 or uu + vv > 1.0 + 1e-12:
-                    continue
-                tt = (e2x * qx + e2y * qy + e2z * qz) * idet
-                if tt > tmin and tt < best:
-                    best = tt
-        out[i] = best
-    return out
-
-
 def _too_thick(what, depths, h, point, t) -> InputError:
     layers = depths.shape[0]
     s = depths[0] / h  # depth of the first layer [h]
@@ -575,10 +327,8 @@ def _check_thickness(mesh, pts0, tri, nrm, dirs, fn, areas, depths, h, what) -> 
     cross the surface, so all its points are inside; the few samples whose path starts
     otherwise (degenerate spots) get the winding-number test instead.
     """
-    V = mesh.vertices
-    (Ts, lo, hi, start, end, left, _, _), pad = _hierarchy(mesh)
     tmin = 1e-6 * h
-    thick = _first_hits(pts0, -nrm, V, Ts, lo, hi, start, end, left, pad, tmin)
+    thick = ray_hits(mesh, pts0, -nrm, tmin)
     i = int(np.argmin(thick))
     deepest = float(depths[-1])
     if thick[i] < 2.0 * deepest + MIN_INNER_GAP * h:
@@ -588,7 +338,7 @@ def _check_thickness(mesh, pts0, tri, nrm, dirs, fn, areas, depths, h, what) -> 
         raise _too_thick(what, depths, h, pts0[i], float(min(thick[i], 2.0 * depths[bad[0]] - h)))
     dl = np.linalg.norm(dirs, axis=1)
     unit = dirs / np.where(dl > 0.0, dl, 1.0)[:, None]
-    along = _first_hits(pts0, -unit, V, Ts, lo, hi, start, end, left, pad, tmin)
+    along = ray_hits(mesh, pts0, -unit, tmin)
     out = along <= deepest * dl * (1.0 + 1e-9)
     if mesh.closed:
         odd = np.einsum("ij,ij->i", unit, fn[tri]) <= 0.0
@@ -713,32 +463,3 @@ def thin_crowded(sample: ShellSample, h: float, min_sep: float = THIN_SEPARATION
     into = cKDTree(sample.points[keep]).query(sample.points[dropped])[1]
     np.add.at(volumes, into, sample.volumes[dropped])
     return ShellSample(sample.points[keep], volumes, sample.layer[keep], sample.normals[keep])
-
-
-# ----------------------------------------------------------------------------------------
-# embedding
-# ----------------------------------------------------------------------------------------
-def embed_points(points: np.ndarray, particles: np.ndarray, k: int = 8) -> tuple[np.ndarray, np.ndarray]:
-    """Each of `points` (m,3) is tied to its k nearest `particles` (n,3) with smooth positive weights summing to 1.
-
-    Wendland C2 weights (1 - q)^4 (1 + 4 q), q = d / (1.5 d_k), d_k the distance to the k-th
-    nearest; returns (idx (m,k) int64, w (m,k) float64); if n < k, k = n. A vertex placed at
-    sum_i w_i (x_i + F_i (X - X_i)) then moves exactly with any affine motion.
-    """
-    X = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-    Pp = np.ascontiguousarray(particles, dtype=np.float64).reshape(-1, 3)
-    if Pp.shape[0] == 0:
-        raise ValueError("embed_points needs at least one particle")
-    k = int(min(k, Pp.shape[0]))
-    if k < 1:
-        raise ValueError(f"k must be >= 1, got {k}")
-    if X.shape[0] == 0:
-        return np.zeros((0, k), np.int64), np.zeros((0, k))
-    d, idx = cKDTree(Pp).query(X, k=k)
-    d = np.asarray(d, dtype=np.float64).reshape(X.shape[0], k)
-    idx = np.asarray(idx, dtype=np.int64).reshape(X.shape[0], k)
-    support = 1.5 * d[:, -1:]
-    q = np.divide(d, support, out=np.zeros_like(d), where=support > 0.0)
-    w = (1.0 - q) ** 4 * (1.0 + 4.0 * q)
-    w /= w.sum(axis=1, keepdims=True)
-    return idx, w
