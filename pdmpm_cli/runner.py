@@ -16,10 +16,10 @@ from pdmpm_cli.engine.discretize import Discretization, discretize
 from pdmpm_cli.engine.embedding import mesh_positions
 from pdmpm_cli.engine.model import Model, State
 from pdmpm_cli.engine.solver import Solver
-from pdmpm_cli.errors import InputError
+from pdmpm_cli.errors import InputError, SceneValueError
 from pdmpm_cli.io.lock import LOCK_NAME, OutputLock
 from pdmpm_cli.plan import Plan, make_plan
-from pdmpm_cli.scene.loader import load_scene
+from pdmpm_cli.scene.loader import load_scene, locate
 from pdmpm_cli.scene.schema import Scene
 
 
@@ -41,7 +41,11 @@ def prepare(path, overrides=(), variant: str | None = None) -> Prepared:
     """Load and validate the scene file (with one of its variants), discretise it, and make the Plan."""
     path = Path(path)
     scene, text = load_scene(path, Scene, list(overrides), variant)
-    return dataclasses.replace(prepare_scene(scene, path, text), overrides=tuple(overrides), variant=variant)
+    try:
+        prep = prepare_scene(scene, path, text)
+    except SceneValueError as e:  # a broken mesh file, a body larger than the domain: point at the scene's line
+        raise locate(e, path, text, overrides, variant) from None
+    return dataclasses.replace(prep, overrides=tuple(overrides), variant=variant)
 
 
 def prepare_resume(out: Path, scene=None, overrides=(), variant: str | None = None

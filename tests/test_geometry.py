@@ -401,7 +401,7 @@ def test_missing_garbage_and_unknown_files(tmp_path, monkeypatch):
     with pytest.raises(InputError, match="garbage.stl"):
         M.load_surface_mesh("garbage.stl")
     (tmp_path / "shape.xyz1").write_text("1 2 3\n")
-    with pytest.raises(InputError, match=r"Supported extensions: .*\.obj.*\.stl"):
+    with pytest.raises(InputError, match=r"extensions read are .*\.obj.*\.stl"):
         M.load_surface_mesh("shape.xyz1")
 
 

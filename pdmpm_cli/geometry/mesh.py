@@ -32,7 +32,11 @@ The inside test and ray queries over these meshes live in :mod:`pdmpm_cli.geomet
 
 from __future__ import annotations
 
+import contextlib
+import io
+import logging
 import os
+import re
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -67,6 +71,9 @@ _FIX_NONMANIFOLD = (
 _FIX_ORIENT = (
     "make the face orientation consistent (Blender: Edit mode, select all, Mesh > Normals > "
     "Recalculate Outside; or meshfix)"
+)
+_FIX_UNMERGED = (
+    "merge the duplicates (Blender: Edit mode, select all, Mesh > Clean Up > Merge by Distance; or meshfix)"
 )
 _FIX_DEGENERATE = (
     "remove the zero-area faces (Blender: Mesh > Clean Up > Merge by Distance and Degenerate "
@@ -133,13 +140,37 @@ def mesh_bounds(mesh: SurfaceMesh) -> tuple[np.ndarray, np.ndarray]:
 # ----------------------------------------------------------------------------------------
 # loading
 # ----------------------------------------------------------------------------------------
-def _supported_extensions() -> list[str]:
+#: readers by file extension: trimesh for what it reads well, meshio's format readers for PLY and the rest
+TRIMESH_FORMATS = {".obj": "OBJ", ".stl": "STL", ".off": "OFF", ".glb": "glTF binary", ".gltf": "glTF"}
+#: length of one file unit in metres (``units``)
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+_EXPORT_HINT = ("export it again from the modelling tool, e.g. Blender: File > Export > Wavefront (.obj) or "
+                "Stl (.stl)")
+
+
+def _meshio_extensions() -> dict[str, list[str]]:
     import meshio
 
-    ext = getattr(meshio, "extension_to_filetypes", None)
-    if ext is None:  # pragma: no cover - older meshio
-        ext = getattr(getattr(meshio, "_helpers", None), "extension_to_filetypes", {})
-    return sorted(ext.keys())
+    return meshio.extension_to_filetypes
+
+
+def supported_extensions() -> list[str]:
+    """Every mesh file extension the loader reads."""
+    return sorted(set(TRIMESH_FORMATS) | set(_meshio_extensions()))
+
+
+def _format_of(resolved: Path) -> tuple[str, str]:
+    """(reader, format name) for a file, by its extension; InputError naming the readable ones."""
+    name = resolved.name.lower()
+    if resolved.suffix.lower() in TRIMESH_FORMATS:
+        return "trimesh", TRIMESH_FORMATS[resolved.suffix.lower()]
+    for ext, types in sorted(_meshio_extensions().items(), key=lambda e: -len(e[0])):
+        if name.endswith(ext):
+            return "meshio", types[0]  # meshio's name of the format (e.g. "ply")
+    raise InputError(
+        f"mesh file {resolved}: unknown file extension '{resolved.suffix}'. Fix: export it as OBJ, STL, PLY, OFF or "
+        f"glTF (.glb); the extensions read are {', '.join(supported_extensions())}"
+    )
 
 
 def _fmt_point(x) -> str:
@@ -159,26 +190,24 @@ _CORNERS = {"triangle": 3, "triangle6": 3, "triangle7": 3, "quad": 4, "quad8": 4
 _VOLUME_CELLS = ("tetra", "hexahedron", "wedge", "pyramid")
 
 
-def _read_faces(resolved: Path) -> tuple[np.ndarray, np.ndarray]:
+def _read_trimesh(resolved: Path) -> tuple[np.ndarray, np.ndarray, str]:
+    """OBJ (v/vt/vn corners, groups, materials, n-gons), STL, OFF, glTF through trimesh, as one mesh: polygons
+    come fan-triangulated, scenes (OBJ objects, glTF nodes) concatenated with their transforms, vertex order
+    kept as far as the format allows (OBJ: the file's order, so shell pins by vertex index match it)."""
+    import trimesh
+
+    options = {"maintain_order": True, "skip_materials": True} if resolved.suffix.lower() == ".obj" else {}
+    m = trimesh.load(str(resolved), file_type=resolved.suffix.lower()[1:], force="mesh", process=False, **options)
+    return np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64).reshape(-1, 3), ""
+
+
+def _read_meshio(resolved: Path, file_format: str) -> tuple[np.ndarray, np.ndarray, str]:
+    """PLY (any mix of polygon sizes, which trimesh's binary PLY reader cannot take), VTK, VTU, ... through
+    meshio's reader for the format (which prints and ends the process on a file it cannot read: the caller
+    catches that). Returns (points, triangles, a hint when there are no faces)."""
     import meshio
 
-    name = resolved.name.lower()
-    exts = _supported_extensions()
-    if not any(name.endswith(e) for e in exts):
-        raise InputError(
-            f"cannot read mesh file {resolved}: unknown file extension '{resolved.suffix}'. "
-            f"Supported extensions: {', '.join(exts)}"
-        )
-    try:
-        with warnings.catch_warnings():  # e.g. numpy overflow warnings while sniffing STL headers
-            warnings.simplefilter("ignore", RuntimeWarning)
-            m = meshio.read(str(resolved))
-    except Exception as exc:  # meshio raises many different types for broken files
-        raise InputError(
-            f"cannot read mesh file {resolved}: {type(exc).__name__}: {exc}. "
-            f"Supported extensions: {', '.join(exts)} (is the file complete and in the "
-            f"format its extension says?)"
-        ) from None
+    m = meshio.read(str(resolved), file_format=file_format)
     pts = np.asarray(m.points, dtype=np.float64)
     faces: list[np.ndarray] = []
     volume_types = []
@@ -198,30 +227,99 @@ def _read_faces(resolved: Path) -> tuple[np.ndarray, np.ndarray]:
             faces.append(_fan(data))
         elif ctype.startswith(_VOLUME_CELLS):
             volume_types.append(ctype)
-    if not faces:
-        if volume_types:
-            hint = (
-                f"it contains only volume cells ({', '.join(sorted(set(volume_types)))}); "
-                "export its boundary surface as triangles (e.g. STL or OBJ)"
-            )
-        elif pts.shape[0] == 0:
-            hint = "it contains no vertices at all (empty file or not really this format?)"
-        else:
-            hint = "export the surface as triangles or polygons (e.g. STL or OBJ)"
-        raise InputError(f"mesh file {resolved} has no triangle or polygon faces: {hint}")
-    tris = np.concatenate(faces, axis=0)
+    hint = ""
+    if volume_types:
+        hint = (f"it holds only volume cells ({', '.join(sorted(set(volume_types)))}). Fix: export its boundary "
+                "surface as triangles (e.g. STL or OBJ)")
+    tris = np.concatenate(faces, axis=0) if faces else np.zeros((0, 3), np.int64)
+    return pts, tris, hint
+
+
+def read_mesh_file(resolved: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(points (n, 3), triangles (m, 3)) as the file stores them; InputError naming the file and the fix for a
+    missing, empty, unreadable or damaged file, one without faces, NaN coordinates or faces naming missing vertices.
+
+    Whatever a reader raises (or a `SystemExit`) becomes that InputError: no file makes pdmpm crash. The reader is
+    chosen by extension (:data:`TRIMESH_FORMATS`, else meshio): on the test corpus (``bench/mesh_readers.py``)
+    meshio refused Blender's OBJ with texture or normal indices and ended the process on an OFF file with quads;
+    trimesh read those and glTF, but not a binary PLY that mixes triangles and quads (as Blender writes it), which
+    meshio reads."""
+    if not resolved.exists():
+        raise InputError(f"mesh file not found: {resolved}. Fix: check the file name and folder (a relative path "
+                         "starts from the scene file's folder)")
+    if resolved.is_dir():
+        inside = sorted(p.name for p in resolved.iterdir() if p.suffix.lower() in supported_extensions())[:5]
+        holds = f" (it holds {', '.join(inside)})" if inside else ""
+        raise InputError(f"mesh path {resolved} is a folder, not a mesh file{holds}. Fix: give the path of the mesh "
+                         "file itself")
+    if not resolved.is_file():
+        raise InputError(f"mesh path {resolved} is not a regular file. Fix: give the path of a mesh file")
+    reader, file_format = _format_of(resolved)
+    fmt = file_format if reader == "trimesh" else file_format.upper()
+    a_fmt = ("an " if fmt[0] in "AEFHILMNORSX" else "a ") + fmt  # as the letter is spoken: an OBJ, an STL, a PLY
+    if resolved.stat().st_size == 0:
+        raise InputError(f"mesh file {resolved} is empty (0 bytes). Fix: {_EXPORT_HINT}")
+    said = io.StringIO()  # what a reader prints instead of raising (meshio)
+    try:
+        with (warnings.catch_warnings(), contextlib.redirect_stdout(said), contextlib.redirect_stderr(io.StringIO()),
+              _quiet_logger("trimesh")):
+            warnings.simplefilter("ignore")
+            pts, tris, hint = _read_trimesh(resolved) if reader == "trimesh" else _read_meshio(resolved, file_format)
+    except KeyboardInterrupt:
+        raise
+    except BaseException as exc:  # readers raise anything on a damaged file (meshio: SystemExit)
+        detail = _reader_detail(exc, said.getvalue())
+        raise InputError(f"mesh file {resolved} could not be read as {a_fmt} file ({detail}): it is damaged, "
+                         f"truncated or in another format. Fix: {_EXPORT_HINT}") from None
     if pts.ndim != 2 or pts.shape[1] not in (2, 3):
-        raise InputError(f"mesh file {resolved}: vertex array has shape {pts.shape}, expected (n, 3)")
+        raise InputError(f"mesh file {resolved}: vertex array has shape {pts.shape}, expected (n, 3). Fix: "
+                         f"{_EXPORT_HINT}")
+    if tris.shape[0] == 0:
+        raise InputError(f"mesh file {resolved} has no faces (it holds {pts.shape[0]} vertices): "
+                         + (hint or f"it is truncated, holds only points or lines, or is not {a_fmt} file. Fix: "
+                            f"{_EXPORT_HINT}, as a surface of triangles or polygons"))
     if pts.shape[1] == 2:
-        raise InputError(
-            f"mesh file {resolved} is two-dimensional (vertices have 2 coordinates); a closed "
-            "3-D surface is needed"
-        )
+        raise InputError(f"mesh file {resolved} is two-dimensional (vertices have 2 coordinates). Fix: export a "
+                         "closed 3-D surface")
     if tris.min() < 0 or tris.max() >= pts.shape[0]:
-        raise InputError(f"mesh file {resolved}: faces reference vertices that do not exist")
-    if not np.all(np.isfinite(pts[np.unique(tris)])):
-        raise InputError(f"mesh file {resolved}: vertex coordinates contain NaN or infinity")
+        bad = int(tris.max()) if tris.max() >= pts.shape[0] else int(tris.min())
+        raise InputError(f"mesh file {resolved}: a face refers to vertex {bad} (0-based) but the file has "
+                         f"{pts.shape[0]} vertices. Fix: {_EXPORT_HINT}")
+    used = np.unique(tris)
+    bad = used[~np.all(np.isfinite(pts[used]), axis=1)]
+    if bad.size:
+        raise InputError(f"mesh file {resolved}: {bad.size} vertices have NaN or infinite coordinates (e.g. vertex "
+                         f"{int(bad[0])}, 0-based). Fix: {_EXPORT_HINT}")
     return pts, tris
+
+
+def _reader_detail(exc: BaseException, printed: str) -> str:
+    """A reader's exception in a few words (an out-of-range face index in plain terms); for one that printed its
+    reason and ended the process, the first line it printed."""
+    if isinstance(exc, SystemExit):
+        return printed.strip().splitlines()[0] if printed.strip() else "the reader gave up"
+    if isinstance(exc, MemoryError):
+        return "it asks for more memory than there is: a count or an index in it is absurdly large"
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    m = re.search(r"index (-?\d+) is out of bounds for axis 0 with size (\d+)", text)
+    if m:
+        return f"a face refers to vertex {m.group(1)} (0-based) but the file has {m.group(2)} vertices"
+    text = text if len(text) <= 120 else text[:117] + "..."
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+@contextlib.contextmanager
+def _quiet_logger(name: str):
+    """Keep a library's log records (a missing material file, ...) off the user's terminal while it reads."""
+    log = logging.getLogger(name)
+    handler, propagate = logging.NullHandler(), log.propagate
+    log.addHandler(handler)
+    log.propagate = False
+    try:
+        yield
+    finally:
+        log.removeHandler(handler)
+        log.propagate = propagate
 
 
 def _compact(V: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -247,6 +345,27 @@ def _weld(V: np.ndarray, T: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndar
     return V[first], labels[T].astype(np.int64), nv - ncomp
 
 
+#: a boundary vertex this close to another vertex, relative to the median edge length, is an unmerged duplicate
+NEAR_DUPLICATE = 0.01
+
+
+def _unmerged(V, T, boundary_keys, nv) -> str:
+    """Advice when most boundary vertices have another vertex much closer than the edges are long: the surface
+    is closed but stored with duplicate vertices a little apart (beyond the weld tolerance); '' otherwise."""
+    from scipy.spatial import cKDTree
+
+    verts = np.unique(np.concatenate([boundary_keys // nv, boundary_keys % nv]))
+    edge = float(np.median(np.linalg.norm(V[T[:, 1]] - V[T[:, 0]], axis=1)))
+    d, _ = cKDTree(V).query(V[verts], k=2)
+    near = d[:, 1] < NEAR_DUPLICATE * edge
+    if near.sum() < 0.5 * verts.size:
+        return ""
+    gap = float(d[near, 1].max())
+    return (f"{int(near.sum())} of its {verts.size} boundary vertices lie within {gap:.2g} m of another vertex: it is "
+            f"probably closed, stored with each corner repeated a little apart. Fix: {_FIX_UNMERGED} (a distance of "
+            f"{2 * gap:.2g} m)")
+
+
 def _edge_examples(V, edges, k=2) -> str:
     return "; ".join(f"{_fmt_point(V[u])} - {_fmt_point(V[v])}" for u, v in edges[:k])
 
@@ -268,7 +387,7 @@ def validate_surface(
     V, T = _compact(V, T)
     diag = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
     if not diag > 0.0:
-        raise InputError(f"{where}: all vertices coincide; the mesh has no extent")
+        raise InputError(f"{where}: all vertices coincide; the mesh has no extent. Fix: export the mesh again")
 
     # --- weld duplicate vertices (STL stores every triangle separately)
     V, T, n_merged = _weld(V, T, WELD_TOLERANCE * diag)
@@ -293,7 +412,7 @@ def validate_surface(
         T = T[~collapsed]
         repairs.append(f"dropped {int(collapsed.sum())} collapsed (zero-area) faces")
         if T.shape[0] == 0:
-            raise InputError(f"{where}: every face is degenerate")
+            raise InputError(f"{where}: every face is degenerate (zero area). Fix: {_FIX_DEGENERATE}")
         V, T = _compact(V, T)
     if zero_area.any():
         repairs.append(f"kept {int(zero_area.sum())} zero-area faces (harmless)")
@@ -308,13 +427,17 @@ def validate_surface(
     uniq, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
     problems = []
     boundary = counts == 1
+    unmerged = _unmerged(V, T, uniq[boundary], nv) if boundary.any() else ""
     if boundary.any() and not allow_open:
         e = uniq[boundary]
         edges = np.stack([e // nv, e % nv], axis=1)
         problems.append(
             f"the surface is not closed: {int(boundary.sum())} boundary edges (edges used by "
-            f"only one triangle), e.g. {_edge_examples(V, edges)}. Fix: {_FIX_HOLES}"
+            f"only one triangle), e.g. {_edge_examples(V, edges)}"
+            + (f", but {unmerged}" if unmerged else f". Fix: {_FIX_HOLES}")
         )
+    elif unmerged:
+        repairs.append(f"the surface has {int(boundary.sum())} boundary edges, but {unmerged}")
     nonmanifold = counts > 2
     if nonmanifold.any():
         e = uniq[nonmanifold]
@@ -343,8 +466,8 @@ def validate_surface(
     vol = mesh_volume(SurfaceMesh(V, T))
     if not abs(vol) > 1e-12 * diag**3:
         raise InputError(
-            f"{where}: the closed surface encloses zero volume (flat or self-cancelling); "
-            "a solid body is needed"
+            f"{where}: the closed surface encloses zero volume (flat or self-cancelling). Fix: model a solid, a "
+            "surface around a volume; a flat sheet can be a shell body (mode: shell, layers: 1)"
         )
     if vol < 0.0:
         T = T[:, [0, 2, 1]].copy()
@@ -364,39 +487,47 @@ def is_closed(T: np.ndarray) -> bool:
     return bool(np.all(counts >= 2))
 
 
-def load_surface_mesh(
-    path, scale=1.0, translate=(0.0, 0.0, 0.0), R=None, *, allow_open: bool = False
-) -> SurfaceMesh:
-    """Read, place, weld, validate and (if inverted) flip a closed triangle surface.
-
-    ``x = R @ (scale * x_file) + translate``; ``scale`` is a positive number or 3 positive
-    numbers (per axis), ``R`` a 3x3 rotation matrix (default identity), ``translate`` (3,).
-    ``allow_open`` also accepts a surface with holes / boundary (a cloth): ``closed`` is then
-    False and its orientation is kept as in the file.
-    Raises :class:`InputError` naming the (resolved) path for any problem.
-    """
+def place(points: np.ndarray, *, units: str = "m", scale=1.0, R=None, translate=(0.0, 0.0, 0.0), fit=None,
+          where: str = "mesh") -> np.ndarray:
+    """A mesh file's coordinates in metres: ``x = R (units * scale * x_file) + translate`` (``scale`` one factor or
+    one per axis, the rotation about the file's origin). With ``fit = (size, axis, center)`` the rotated mesh is
+    instead scaled uniformly so that its bounding box is ``size`` metres long along ``axis`` ("x", "y", "z" or
+    "longest") and moved so that the box's centre is ``center``, as the built-in bunny's height and center."""
     from pdmpm_cli.geometry.shapes import _rotation, _vec3
 
-    given = str(path)
-    resolved = Path(os.path.expanduser(given)).resolve()
-    if not resolved.exists():
-        rel = "" if Path(os.path.expanduser(given)).is_absolute() else f" relative to {Path.cwd()}"
-        raise InputError(
-            f"mesh file not found: {resolved} (given as {given!r}{rel}). Check the file name "
-            "and location."
-        )
-    if not resolved.is_file():
-        raise InputError(f"mesh path {resolved} is not a file")
-    where = f"mesh file {resolved}"
-
+    if units not in UNITS:
+        raise InputError(f"{where}: units must be one of {', '.join(UNITS)}, got {units!r}")
     s = np.asarray(scale, dtype=np.float64)
     if s.shape not in ((), (3,)) or not np.all(np.isfinite(s)) or np.any(s <= 0.0):
         raise InputError(f"{where}: scale must be a positive number or 3 positive numbers, got {scale!r}")
-    t = _vec3(translate, "translate")
-    M = _rotation(R)
+    V = (points * (UNITS[units] * s)) @ _rotation(R).T
+    if fit is None:
+        return V + _vec3(translate, "translate")
+    size, axis, center = fit
+    lo, hi = V.min(axis=0), V.max(axis=0)
+    extent = hi - lo
+    a = int(np.argmax(extent)) if axis == "longest" else "xyz".index(axis)
+    if not extent[a] > 0.0:
+        raise InputError(f"{where}: the mesh has no extent along {'xyz'[a]}, so it cannot be fitted to a size "
+                         f"along it. Fix: fit along another axis (fit.axis)")
+    k = float(size) / extent[a]
+    return k * (V - 0.5 * (lo + hi)) + _vec3(center, "fit.center")
 
-    pts, tris = _read_faces(resolved)
+
+def load_surface_mesh(
+    path, scale=1.0, translate=(0.0, 0.0, 0.0), R=None, *, units: str = "m", fit=None, allow_open: bool = False
+) -> SurfaceMesh:
+    """Read, place, weld, validate and (if inverted) flip a closed triangle surface.
+
+    Placement as :func:`place` (``units``, ``scale``, rotation matrix ``R``, ``translate`` or ``fit``).
+    ``allow_open`` also accepts a surface with holes / boundary (a cloth): ``closed`` is then
+    False and its orientation is kept as in the file.
+    Raises :class:`InputError` naming the (resolved) path and the fix for any problem.
+    """
+    resolved = Path(os.path.expanduser(str(path))).resolve()
+    where = f"mesh file {resolved}"
+    pts, tris = read_mesh_file(resolved)
     pts, tris = _compact(pts, tris)
-    V = (pts * s) @ M.T + t
+    V = place(pts, units=units, scale=scale, R=R, translate=translate, fit=fit, where=where)
     V, T, repairs = validate_surface(V, tris, where, allow_open=allow_open)
     return SurfaceMesh(V, T, str(resolved), repairs, closed=is_closed(T))

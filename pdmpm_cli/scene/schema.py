@@ -60,13 +60,44 @@ class CapsuleShape(Placed):
     length: float = Field(ge=0, description="Distance between the two cap centres, along local z [m].")
 
 
+class MeshFit(Strict):
+    """Place a mesh by size, as the built-in bunny's height and center: the mesh (after units, scale and rotation)
+    is scaled uniformly so that its bounding box has this size, and moved so that the box's centre is `center`."""
+
+    size: float = Field(gt=0, description="Length of the bounding box along `axis` after fitting [m].")
+    axis: Literal["x", "y", "z", "longest"] = Field(
+        "longest", description="Which edge of the bounding box `size` sets: x, y, z or the longest one [-].")
+    center: Vec3 = Field(description="Centre of the fitted bounding box in world coordinates [m].")
+
+
 class MeshShape(Strict):
+    """A closed surface mesh file. Its coordinates become metres as x = R (units * scale * x_file) + translate
+    (R the rotation about the file's origin), or, with `fit`, scaled and moved to a given size and centre."""
+
     type: Literal["mesh"]
-    path: str = Field(description="Closed surface mesh readable by meshio (OBJ, STL, PLY, OFF, VTK...), "
-                                  "relative to the scene file.")
-    scale: float = Field(1.0, gt=0, description="Uniform scale applied to the mesh's vertices [-].")
+    path: str = Field(description="Mesh file relative to the scene file: OBJ (with texture and normal indices, "
+                                  "groups, materials, polygons), STL (ascii or binary), PLY, OFF, glTF/GLB, "
+                                  "VTK/VTU.")
+    units: Literal["m", "cm", "mm"] = Field(
+        "m", description="Length unit of the file's coordinates (CAD files are often in mm); converted to metres "
+                         "before scale [-].")
+    scale: float | Vec3 = Field(
+        1.0, description="Scale factor applied to the file's coordinates after units: one number, or one per axis "
+                         "[x, y, z] [-].")
     translate: Vec3 = Field((0.0, 0.0, 0.0), description="Translation applied after scale and rotation [m].")
     rotation: Vec3 = Field((0.0, 0.0, 0.0), description="Rotation about x, y then z through the origin [degrees].")
+    fit: MeshFit | None = Field(
+        None, description="Fit the mesh to a size and centre instead of translating it (see MeshFit); absent: the "
+                          "file's coordinates as they are (after units, scale, rotation and translate).")
+
+    @model_validator(mode="after")
+    def _placement(self):
+        factors = (self.scale,) if isinstance(self.scale, (int, float)) else self.scale
+        if min(factors) <= 0:
+            raise ValueError(f"scale must be positive (got {self.scale})")
+        if self.fit is not None and any(self.translate):
+            raise ValueError("give translate or fit (whose center places the mesh), not both")
+        return self
 
 
 class BunnyShape(Placed):
