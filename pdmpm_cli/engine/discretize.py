@@ -191,6 +191,17 @@ def body_surface(shape, base_dir: Path, edge: float, allow_open: bool) -> meshes
     return primitive_surfaces.primitive_surface(shape.type, center=c, R=R, edge=edge, **primitive_kwargs(shape))
 
 
+def shown_surface(surface, shape, edge: float) -> tuple[np.ndarray, np.ndarray]:
+    """The triangles that ride along with a shell: a mesh file's refined to `edge` (a coarse file's flat triangles
+    could not bend with the particles under them), a built-in shape's as triangulated at that edge already."""
+    if shape.type != "mesh":
+        return surface.vertices, surface.triangles
+    try:
+        return embed.refine_surface(surface.vertices, surface.triangles, edge)
+    except ValueError as e:
+        raise SceneValueError(f"{e}; set a larger geometry.edge", subject=shape) from None
+
+
 def sample_shell(body, base_dir: Path, dx: float, rng) -> BodySample:
     """Shell mode: points on the surface and in layers under it; the surface's vertices ride along."""
     geo = body.geometry
@@ -199,10 +210,10 @@ def sample_shell(body, base_dir: Path, dx: float, rng) -> BodySample:
     sample = shell.shell_particles(surface, h, geo.layers, rng, what=f"body '{body.name}'",
                                    first_depth=0.5 if geo.layers > 1 else 0.0)
     sample = shell.thin_crowded(sample, h)
-    idx, w = embed.embed_points(surface.vertices, sample.points)
-    mesh = EmbeddedMesh(body.name, -1, "surface", surface.vertices, surface.triangles, idx, w,
-                        np.zeros(0, np.int64))
-    repairs = list(surface.repairs)
+    V, T = shown_surface(surface, geo.surface, geo.edge or h)
+    idx, w = embed.embed_points(V, sample.points)
+    mesh = EmbeddedMesh(body.name, -1, "surface", V, T, idx, w, np.zeros(0, np.int64))
+    repairs = list(surface.repairs) + sample.notes
     if not surface.closed and geo.layers > 1:
         repairs.append(f"the surface is open (it has holes or edges), so its {geo.layers} layers go against its "
                        f"normals; if it should be closed, fill its holes (Blender: Select > All by Trait > Non "

@@ -25,11 +25,18 @@ Sampling (:func:`shell_particles`)
     the midpoint rule), and a flat sheet gets exactly area * layers * h. An open surface gets
     its layers on the side opposite its normals.
 
-    Checks (InputError): layers >= 1; at least 4 points; at most ``MAX_POINTS``; with
-    layers > 1 the body must be thick enough: along the inward normal of each sample the
-    surface must be at least ``2 (layers - 1) h + MIN_INNER_GAP h`` away (the deepest layers
-    from opposite sides stay h/2 apart), and the path of each sample's layers must not leave
-    the body (which, on a closed surface, is the inside test of every inner point).
+    Checks (InputError): layers >= 1; at least 4 points; at most ``MAX_POINTS``.
+
+    Where the body is thinner than its layers (measured per sample by two ray casts: along
+    the inward normal the layers from opposite sides must stay ``MIN_INNER_GAP h`` apart,
+    and the sample's offset path must not leave the body or pass where its triangle's offset
+    turns over), the sample keeps only the layers that fit. Its deepest point then stands
+    for the material down to the middle of the body and sits at the centre of that slab.
+    Volumes are then taken per triangle: a point stands for its slab under its sample's
+    share of the surface (the area nearer to it than to other samples) times the integral of
+    the triangle's offset area ratio (a quadratic in the depth) over the slab, so the total
+    stays the volume under the surface (a plate thinner than its layers gets its own volume,
+    not the layers'). Bodies thick enough everywhere keep the per-layer volumes above. ``ShellSample.notes`` says where layers were cut.
 
     Option ``first_depth`` (default 0, as above) moves every layer deeper by first_depth h;
     with 0.5 layer k sits at (k + 1/2) h and the layers' slabs fill [0, layers h] inside the
@@ -43,7 +50,7 @@ the surface are tied to the particles by :mod:`pdmpm_cli.geometry.embed`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
@@ -304,53 +311,67 @@ def _blue_noise(V, T, area, n_target, h, rng):
 # ----------------------------------------------------------------------------------------
 # local thickness: first hit along the inward normal (rays against the mesh's BVH)
 # ----------------------------------------------------------------------------------------
-def _too_thick(what, depths, h, point, t) -> InputError:
-    layers = depths.shape[0]
-    s = depths[0] / h  # depth of the first layer [h]
-    L_max = max(1, int(math.floor((t / h - MIN_INNER_GAP) / 2.0 - s + 1.0)))
-    h_max = t / (2.0 * (layers - 1 + s) + MIN_INNER_GAP)
-    return InputError(
-        f"{what}: the shell ({layers} layers x spacing h = {h:g} m, layers*h = {layers * h:.4g} m thick) is "
-        f"thicker than the body near {_fmt_point(point)}, where the body is only about {t:.3g} m thick: the "
-        f"layers from opposite sides would overlap. Use fewer layers (at most {L_max} there) or a smaller "
-        f"spacing h (at most {h_max:.3g} m with {layers} layers)"
-    )
+def _available_depth(mesh, pts0, tri, dirs, fn, depths, h) -> tuple[np.ndarray, np.ndarray]:
+    """How deep each sample's layers may go: (deepest layer centre, depth of material on this side) [m].
 
-
-def _check_thickness(mesh, pts0, tri, nrm, dirs, fn, areas, depths, h, what) -> None:
-    """Raise if the layers would overlap across the body or leave it (see the module doc).
-
-    Two ray casts per sample against the mesh: along the inward normal the surface must be
-    ``2 * deepest + MIN_INNER_GAP h`` away; along the sample's offset path the surface must
-    lie beyond the deepest layer point. The second is the inside test of the inner points:
-    the path starts into the body (it moves every adjacent face plane inwards) and does not
-    cross the surface, so all its points are inside; the few samples whose path starts
-    otherwise (degenerate spots) get the winding-number test instead.
+    Two ray casts per sample against the mesh. Along the inward normal of its triangle the body is t thick: a layer centred at
+    depth d fits if 2 d + MIN_INNER_GAP h <= t (the deepest layers from opposite sides stay h/2 apart), and this
+    side's material reaches t / 2. Along the sample's offset path the surface must lie beyond the layer: that is
+    the inside test of the inner points (the path starts into the body, since it moves every adjacent face plane
+    inwards, and does not cross the surface), except for the few samples whose path starts otherwise (degenerate
+    spots), which get the winding-number test of each layer point instead.
     """
     tmin = 1e-6 * h
-    thick = ray_hits(mesh, pts0, -nrm, tmin)
-    i = int(np.argmin(thick))
-    deepest = float(depths[-1])
-    if thick[i] < 2.0 * deepest + MIN_INNER_GAP * h:
-        raise _too_thick(what, depths, h, pts0[i], float(thick[i]))
-    bad = np.flatnonzero(areas <= 0.0)
-    if bad.size:  # the offset surface turned inside out: deeper than the body's half thickness
-        raise _too_thick(what, depths, h, pts0[i], float(min(thick[i], 2.0 * depths[bad[0]] - h)))
+    half = 0.5 * ray_hits(mesh, pts0, -fn[tri], tmin)
+    centre = half - 0.5 * MIN_INNER_GAP * h
     dl = np.linalg.norm(dirs, axis=1)
     unit = dirs / np.where(dl > 0.0, dl, 1.0)[:, None]
-    along = ray_hits(mesh, pts0, -unit, tmin)
-    out = along <= deepest * dl * (1.0 + 1e-9)
+    exit_depth = ray_hits(mesh, pts0, -unit, tmin) / np.where(dl > 0.0, dl, np.inf)
     if mesh.closed:
-        odd = np.einsum("ij,ij->i", unit, fn[tri]) <= 0.0
-        out &= ~odd
+        odd = np.flatnonzero(np.einsum("ij,ij->i", unit, fn[tri]) <= 0.0)
         inner = depths[depths > 0.0]
-        if odd.any():
+        exit_depth[odd] = np.inf
+        if odd.size and inner.size:
             pts = np.concatenate([pts0[odd] - d * dirs[odd] for d in inner])
-            outside = ~inside_mesh(mesh, pts).reshape(inner.shape[0], -1).all(axis=0)
-            out[np.flatnonzero(odd)[outside]] = True
-    if out.any():
-        j = int(np.flatnonzero(out)[np.argmin(thick[out])])
-        raise _too_thick(what, depths, h, pts0[j], float(min(thick[j], along[j])))
+            inside = inside_mesh(mesh, pts).reshape(inner.shape[0], -1)
+            first_out = np.argmin(np.vstack([inside, np.zeros((1, odd.size), bool)]), axis=0)
+            exit_depth[odd] = np.where(first_out < inner.shape[0], inner[np.minimum(first_out, inner.size - 1)],
+                                       np.inf)
+    exit_depth *= 1.0 - 1e-9
+    return np.minimum(centre, exit_depth), np.minimum(half, exit_depth)
+
+
+def _area_polynomials(V: np.ndarray, T: np.ndarray, vd: np.ndarray, fn: np.ndarray) -> np.ndarray:
+    """(nt, 3) coefficients c of each triangle's area at depth s, c0 + c1 s + c2 s^2: the triangle with its
+    vertices moved by -s d_v, projected on its original normal (as _offset_area sums them)."""
+    P, D = V[T], vd[T]
+    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    g1, g2 = D[:, 1] - D[:, 0], D[:, 2] - D[:, 0]
+    dot = lambda u, w: 0.5 * np.einsum("ij,ij->i", np.cross(u, w), fn)  # noqa: E731
+    return np.stack([dot(e1, e2), -(dot(e1, g2) + dot(g1, e2)), dot(g1, g2)], axis=1)
+
+
+def _first_root(c: np.ndarray) -> np.ndarray:
+    """Smallest positive s where c0 + c1 s + c2 s^2 falls to (nearly) zero: the offset triangle turns over, or
+    shrinks to a point and grows again turned by half a turn (a square face shrinking evenly: a double root, which
+    the 1e-6 margin splits); inf if none."""
+    c0, c1, c2 = c[:, 0] * (1.0 - 1e-6), c[:, 1], c[:, 2]
+    out = np.full(c.shape[0], np.inf)
+    lin = np.abs(c2) <= 1e-12 * np.maximum(np.abs(c1), 1e-300) * np.maximum(np.abs(c0 / np.where(c1 != 0, c1, 1)), 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = -c0 / c1
+        out[lin & (r > 0)] = r[lin & (r > 0)]
+        disc = c1 * c1 - 4.0 * c2 * c0
+        sq = np.sqrt(np.maximum(disc, 0.0))
+        for root in ((-c1 - sq) / (2.0 * c2), (-c1 + sq) / (2.0 * c2)):
+            ok = ~lin & (disc >= 0.0) & (root > 0.0)
+            out[ok] = np.minimum(out[ok], root[ok])
+    return out
+
+
+def _slab_area(c: np.ndarray, s0: np.ndarray, s1: np.ndarray) -> np.ndarray:
+    """Integral of c0 + c1 s + c2 s^2 over [s0, s1] (the volume under a triangle between two depths)."""
+    return c[:, 0] * (s1 - s0) + c[:, 1] * (s1**2 - s0**2) / 2.0 + c[:, 2] * (s1**3 - s0**3) / 3.0
 
 
 # ----------------------------------------------------------------------------------------
@@ -358,12 +379,19 @@ def _check_thickness(mesh, pts0, tri, nrm, dirs, fn, areas, depths, h, what) -> 
 # ----------------------------------------------------------------------------------------
 @dataclass
 class ShellSample:
-    """Material points of a shell body, layer by layer (layer 0 first, n0 points per layer)."""
+    """Material points of a shell body, layer by layer (layer 0 first; where the body is thin a sample has fewer
+    layers than asked for, so deeper layers hold fewer points)."""
 
     points: np.ndarray  # (n, 3) material points [m]
     volumes: np.ndarray  # (n,) volume of each point [m^3]
     layer: np.ndarray  # (n,) int32, 0 = on the surface, k = depth k*h (plus first_depth * h if given)
     normals: np.ndarray  # (n, 3) outward unit normal of the surface at the point's surface location
+    thin: np.ndarray = None  # (n,) bool: the deepest point of a sample whose layers were cut short (body too thin)
+    notes: list[str] = field(default_factory=list)  # where the shell differs from what was asked (fewer layers)
+
+    def __post_init__(self):
+        if self.thin is None:
+            self.thin = np.zeros(len(self.points), dtype=bool)
 
 
 def shell_particles(mesh: SurfaceMesh, h: float, layers: int, rng: np.random.Generator,
@@ -416,23 +444,75 @@ def shell_particles(mesh: SurfaceMesh, h: float, layers: int, rng: np.random.Gen
     nrm = np.einsum("ik,ikd->id", bary, vn[T[tri]])
     nl = np.linalg.norm(nrm, axis=1)
     nrm /= np.where(nl > 0.0, nl, 1.0)[:, None]
-    areas = np.full(layers, A)
-    pts = pts0
-    if deep:
-        dirs = np.einsum("ik,ikd->id", bary, vd[T[tri]])  # displacement per unit depth of each sample
-        for k in range(layers):
-            if depths[k] > 0.0:
-                areas[k] = _offset_area(V - depths[k] * vd, T, fn)
-        _check_thickness(mesh, pts0, tri, nrm, dirs, fn, areas, depths, h, what)
-        pts = np.concatenate([pts0 - d * dirs for d in depths])
-    if pts.shape[0] > MAX_POINTS:
+    if not deep:
+        return ShellSample(pts0, np.full(n0, A * h / n0), np.zeros(n0, np.int32), nrm)
+    dirs = np.einsum("ik,ikd->id", bary, vd[T[tri]])  # displacement per unit depth of each sample
+    coef = _area_polynomials(V, T, vd, fn)
+    limit, material = _available_depth(mesh, pts0, tri, dirs, fn, depths, h)
+    turn = _first_root(coef)[tri] - 0.01 * h  # where the sample's offset triangle turns over: no point there
+    limit, material = np.minimum(limit, turn), np.minimum(material, turn)
+    kept = np.maximum(1, (depths[None, :] <= limit[:, None]).sum(axis=1))  # layers are consecutive from 0
+    if np.all(kept == layers):
+        areas = np.array([_offset_area(V - d * vd, T, fn) if d > 0.0 else A for d in depths])
+        sample = ShellSample(np.concatenate([pts0 - d * dirs for d in depths]), np.repeat(areas * h / n0, n0),
+                             np.repeat(np.arange(layers, dtype=np.int32), n0), np.tile(nrm, (layers, 1)))
+    else:
+        share = _surface_shares(V, T, area, fn, pts0, tri, h, rng)
+        sample = _cut_layers(pts0, dirs, nrm, coef[tri], kept, material, depths, h, share)
+        cut = kept < layers
+        at = pts0[np.flatnonzero(cut)[np.argmin(kept[cut])]]
+        sample.notes.append(
+            f"the body is thinner than its {layers} layers x 2 sides x h = {2 * layers * h:.3g} m in places (e.g. "
+            f"near {_fmt_point(at)}): {int(cut.sum())} of {n0} surface points have fewer layers there (down to "
+            f"{int(kept.min())}), their deepest point filling the body to its middle")
+    if sample.points.shape[0] > MAX_POINTS:
         raise InputError(
-            f"{what}: {pts.shape[0]:,} material points (limit {MAX_POINTS:,}); use a larger spacing than "
+            f"{what}: {sample.points.shape[0]:,} material points (limit {MAX_POINTS:,}); use a larger spacing than "
             f"h = {h:g} m or fewer layers"
         )
-    volumes = np.repeat(areas * h / n0, n0)
-    layer = np.repeat(np.arange(layers, dtype=np.int32), n0)
-    return ShellSample(pts, volumes, layer, np.tile(nrm, (layers, 1)))
+    return sample
+
+
+def _surface_shares(V, T, area, fn, pts0, tri, h, rng, per_point: int = 16) -> np.ndarray:
+    """The surface area each sample stands for: uniform points on the surface (per_point per sample) go to their
+    nearest sample, in position and face normal (h n), so that across a crease a point goes to the samples of its
+    own face. Dart throwing leaves narrow strips (a plate's rim) with fewer samples than their area's share, so
+    A / n0 per sample would overweight the faces next to them."""
+    cum = np.cumsum(area)
+    m = per_point * pts0.shape[0]
+    t = np.minimum(np.searchsorted(cum, rng.random(m) * cum[-1], side="right"), T.shape[0] - 1)
+    u, v = rng.random(m), rng.random(m)
+    flip = u + v > 1.0
+    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
+    P = V[T[t, 0]] + u[:, None] * (V[T[t, 1]] - V[T[t, 0]]) + v[:, None] * (V[T[t, 2]] - V[T[t, 0]])
+    nearest = cKDTree(np.hstack([pts0, h * fn[tri]])).query(np.hstack([P, h * fn[t]]))[1]
+    return cum[-1] * np.bincount(nearest, minlength=pts0.shape[0]) / m
+
+
+def _cut_layers(pts0, dirs, nrm, coef, kept, material, depths, h, share) -> ShellSample:
+    """Layers of samples that keep only kept[i] of them: every point stands for its slab of the offset surface,
+    its sample's surface share times the integral of its triangle's area ratio over the slab (which keeps the total the volume
+    under the surface, per triangle); the deepest point of a cut sample takes the slab down to the middle of the
+    body (`material`) and sits at its centre."""
+    half = 0.5 * h
+    pts, vols, lay, nrms, thin = [], [], [], [], []
+    a0 = np.where(coef[:, 0] > 0.0, coef[:, 0], 1.0)
+    for k, d in enumerate(depths):
+        i = np.flatnonzero(kept > k)
+        if i.size == 0:
+            break
+        s0 = np.full(i.size, d - half)
+        s1 = np.full(i.size, d + half)
+        last = (kept[i] == k + 1) & (kept[i] < depths.size)
+        s1[last] = np.maximum(material[i[last]], s0[last] + 1e-6 * h)
+        centre = np.where(last, 0.5 * (s0 + s1), d)
+        pts.append(pts0[i] - centre[:, None] * dirs[i])
+        vols.append(share[i] * np.maximum(_slab_area(coef[i], s0, s1), 0.0) / a0[i])
+        lay.append(np.full(i.size, k, np.int32))
+        nrms.append(nrm[i])
+        thin.append(last)
+    return ShellSample(np.concatenate(pts), np.concatenate(vols), np.concatenate(lay), np.concatenate(nrms),
+                       np.concatenate(thin))
 
 
 #: inner-layer points closer than this to a point already kept are merged into it [h]
@@ -445,9 +525,11 @@ def thin_crowded(sample: ShellSample, h: float, min_sep: float = THIN_SEPARATION
     volume given to the nearest kept point. Crowded pairs would otherwise set a tiny bond time step and
     add hundreds of bonds per point; the total volume is unchanged."""
     r = min_sep * h
-    keep = sample.layer == 0
-    for k in range(1, int(sample.layer.max(initial=0)) + 1):
-        idx = np.flatnonzero(sample.layer == k)
+    keep = (sample.layer == 0) & ~sample.thin  # points moved to the middle of a thin part may crowd too
+    for k in range(0, int(sample.layer.max(initial=0)) + 1):
+        idx = np.flatnonzero((sample.layer == k) & ~keep)
+        if idx.size == 0:
+            continue
         if np.any(keep):
             near = cKDTree(sample.points[keep]).query(sample.points[idx], distance_upper_bound=r)[0]
             idx = idx[~np.isfinite(near)]
@@ -462,4 +544,5 @@ def thin_crowded(sample: ShellSample, h: float, min_sep: float = THIN_SEPARATION
     dropped = np.flatnonzero(~keep)
     into = cKDTree(sample.points[keep]).query(sample.points[dropped])[1]
     np.add.at(volumes, into, sample.volumes[dropped])
-    return ShellSample(sample.points[keep], volumes, sample.layer[keep], sample.normals[keep])
+    return ShellSample(sample.points[keep], volumes, sample.layer[keep], sample.normals[keep], sample.thin[keep],
+                       sample.notes)

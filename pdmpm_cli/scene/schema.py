@@ -171,8 +171,9 @@ class ShellGeometry(Strict):
     horizon: float = Field(
         2.0, gt=1.0, le=4.0, description="Peridynamic horizon delta as a multiple of the spacing h [-].")
     edge: float | None = Field(
-        None, gt=0, description="Edge length of the triangles of a built-in surface (sheet, box, sphere, ...) "
-        "written as the animated mesh [m]; default the spacing. Mesh files keep their own triangles.")
+        None, gt=0, description="Longest edge of the triangles written as the animated mesh [m]; default the "
+        "spacing. Built-in surfaces (sheet, box, sphere, ...) are triangulated at it; a mesh file's longer edges are "
+        "split (its shape is kept, its vertices keep their numbers), so that the surface bends with the particles.")
 
 
 class VoronoiGeometry(Strict):
