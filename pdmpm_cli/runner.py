@@ -147,7 +147,7 @@ def prepare_output_dir(out: Path, overwrite: bool):
             resumable = " (or --resume it from its checkpoint)" if (out / checkpoint.FOLDER).is_dir() else ""
             raise InputError(f"{out}: output folder is not empty; pass --overwrite to replace it{resumable}, or "
                              f"choose another folder with --out")
-        for name in ("run.h5",):
+        for name in ("run.h5", "run.usd"):
             (out / name).unlink(missing_ok=True)
         for sub in ("vtk", "meshes", checkpoint.FOLDER):
             if (out / sub).is_dir():
@@ -176,7 +176,20 @@ def _writers(prep: Prepared, out: Path, static: dict, keep: int) -> list:
     if meshes and scene.output.meshes:
         writers.append(MeshSeriesWriter.reopen(out / "meshes", meshes, keep) if keep else
                        MeshSeriesWriter(out / "meshes", meshes))
+    if scene.output.usd:
+        writers.append(_usd_writer(prep, out, keep))
     return writers
+
+
+def _usd_writer(prep: Prepared, out: Path, keep: int):
+    """The run's USD stage (io.usd): each body's particle range, width (its spacing) and embedded meshes."""
+    from pdmpm_cli.io import usd
+
+    bodies = [usd.UsdBody(b.name, s, e, float(h)) for b, (s, e), h in
+              zip(prep.scene.bodies, prep.disc.body_ranges, prep.disc.body_spacing)]
+    layout = {"fps": 1.0 / prep.plan.frame_dt, "bodies": bodies, "meshes": prep.disc.meshes}
+    path = out / usd.FILE_NAME
+    return usd.UsdWriter.reopen(path, frames=keep, **layout) if keep else usd.UsdWriter(path, **layout)
 
 
 def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwrite: bool = False,
@@ -192,6 +205,10 @@ def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwr
         raise InputError(f"{out}: --resume runs on the CPU backend only for now (the CUDA solver does not reload a "
                          f"restored state); resume with --set simulation.backend=cpu")
     solver = make_solver(model, plan)  # before touching the output folder: a missing GPU loses no earlier run
+    if scene.output.usd:  # likewise a missing usd-core
+        from pdmpm_cli.io.usd import require
+
+        require()
     with OutputLock(out):
         if resume is None:
             prepare_output_dir(out, overwrite)

@@ -475,6 +475,10 @@ class Output(Strict):
     vtk: bool = Field(True, description="Write a VTU file per frame and a .pvd index for ParaView.")
     meshes: bool = Field(True, description="Shell and Voronoi bodies: write their moving surface or cell "
                                            "polyhedra as one PLY file per frame (meshes/<body>_NNNNN.ply).")
+    usd: bool = Field(False, description="Write one USD file (run.usd: metres, +y up, a time sample per frame) with "
+                                         "each body's particles as points (width, velocities, the fields below as "
+                                         "primvars) and its shell surface or Voronoi cells as an animated mesh, for "
+                                         "Houdini, Blender or Omniverse. Needs usd-core (pip install usd-core).")
     fields: list[FieldName] = Field(
         default_factory=lambda: ["particle_v", "particle_speed"],
         description="Per-frame fields besides particle_x (always written).",
