@@ -65,7 +65,8 @@ def uv_sphere(radius=0.1, segments=24, rings=12, center=(0.0, 0.0, 0.0)):
         phi = math.pi * j / rings
         for i in range(segments):
             th = 2 * math.pi * i / segments
-            V.append((radius * math.sin(phi) * math.cos(th), radius * math.cos(phi), radius * math.sin(phi) * math.sin(th)))
+            rho = radius * math.sin(phi)
+            V.append((rho * math.cos(th), radius * math.cos(phi), rho * math.sin(th)))
     V.append((0.0, -radius, 0.0))
     for j in range(rings + 1):
         for i in range(segments + 1):

@@ -222,6 +222,8 @@ def test_plate_thinner_than_its_layers_gets_its_own_volume(c):
     a, b, h = 0.4, 0.2, 0.01
     m = PS.primitive_surface("box", center=CENTER, R=ROT, edge=h, size=(a, b, c))
     s = S.thin_crowded(S.shell_particles(m, h, 4, np.random.default_rng(2), first_depth=0.5), h)
+    print(f"plate {c} m thick, 4 layers at h = {h} m: volume / plate volume - 1 = "
+          f"{s.volumes.sum() / (a * b * c) - 1:+.2%}")
     assert math.isclose(s.volumes.sum(), a * b * c, rel_tol=0.01)
     z = np.abs((s.points - CENTER) @ ROT[:, 2])
     faces = np.abs(s.normals @ ROT[:, 2]) > 0.9
@@ -251,6 +253,9 @@ def test_bunny_shell_layers_fill_the_shell_volume():
     tree = cKDTree(dense, balanced_tree=False, compact_nodes=False)  # the balanced tree is slow from inside
     near = tree.query(q, distance_upper_bound=L * h)[0] < L * h
     shell = np.prod(hi - lo) * near.sum() / 150_000
+    full = int((s.layer == L - 1).sum())
+    print(f"bunny, {L} layers at h = {h} m: {full} of {int((s.layer == 0).sum())} surface samples keep all layers; "
+          f"volume / volume within {L} h of the surface - 1 = {s.volumes.sum() / shell - 1:+.2%}")
     assert math.isclose(s.volumes.sum(), shell, rel_tol=0.03)
 
 

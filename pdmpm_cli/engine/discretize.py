@@ -36,9 +36,9 @@ FILL_DEFICIT = 0.05
 def _load_mesh(path: Path, stamp: tuple, shape, allow_open: bool) -> meshes.SurfaceMesh:
     """One load per file, placement and version (`stamp`: mtime and size): the size check before sampling and the
     sampler read the same mesh."""
+    fit = None if shape.fit is None else (shape.fit.size, shape.fit.axis, shape.fit.center)
     return meshes.load_surface_mesh(path, scale=shape.scale, translate=shape.translate,
-                                    R=shapes.rotation_matrix(shape.rotation), units=shape.units,
-                                    fit=None if shape.fit is None else (shape.fit.size, shape.fit.axis, shape.fit.center),
+                                    R=shapes.rotation_matrix(shape.rotation), units=shape.units, fit=fit,
                                     allow_open=allow_open)
 
 
@@ -348,7 +348,8 @@ def check_sizes(scene: Scene, base_dir: Path) -> None:
         size = " x ".join(f"{e:.3g}" for e in ext)
         if ext[a] > room[a] + dx:
             raise SceneValueError(
-                f"body '{body.name}' is {ext[a]:.3g} m {_EXTENT_WORDS[a]}, but the domain is {dom_hi[a] - dom_lo[a]:.3g} m "
+                f"body '{body.name}' is {ext[a]:.3g} m {_EXTENT_WORDS[a]}, but the domain is "
+                f"{dom_hi[a] - dom_lo[a]:.3g} m "
                 f"(particles must keep 3.5 cells from its walls: {room[a]:.3g} m usable); the body's bounding box is "
                 f"{size} m. Fix: {_size_fix(shape, ext, room)}", subject=shape)
         if np.any(hi < dom_lo) or np.any(lo > dom_hi):

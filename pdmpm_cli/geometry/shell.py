@@ -36,7 +36,8 @@ Sampling (:func:`shell_particles`)
     share of the surface (the area nearer to it than to other samples) times the integral of
     the triangle's offset area ratio (a quadratic in the depth) over the slab, so the total
     stays the volume under the surface (a plate thinner than its layers gets its own volume,
-    not the layers'). Bodies thick enough everywhere keep the per-layer volumes above. ``ShellSample.notes`` says where layers were cut.
+    not the layers'). Bodies thick enough everywhere keep the per-layer volumes above.
+    ``ShellSample.notes`` says where layers were cut.
 
     Option ``first_depth`` (default 0, as above) moves every layer deeper by first_depth h;
     with 0.5 layer k sits at (k + 1/2) h and the layers' slabs fill [0, layers h] inside the
@@ -314,8 +315,8 @@ def _blue_noise(V, T, area, n_target, h, rng):
 def _available_depth(mesh, pts0, tri, dirs, fn, depths, h) -> tuple[np.ndarray, np.ndarray]:
     """How deep each sample's layers may go: (deepest layer centre, depth of material on this side) [m].
 
-    Two ray casts per sample against the mesh. Along the inward normal of its triangle the body is t thick: a layer centred at
-    depth d fits if 2 d + MIN_INNER_GAP h <= t (the deepest layers from opposite sides stay h/2 apart), and this
+    Two ray casts per sample against the mesh. Along the inward normal of its triangle the body is t thick: a
+    layer centred at depth d fits if 2 d + MIN_INNER_GAP h <= t (the deepest layers from opposite sides stay h/2 apart), and this
     side's material reaches t / 2. Along the sample's offset path the surface must lie beyond the layer: that is
     the inside test of the inner points (the path starts into the body, since it moves every adjacent face plane
     inwards, and does not cross the surface), except for the few samples whose path starts otherwise (degenerate
@@ -491,8 +492,8 @@ def _surface_shares(V, T, area, fn, pts0, tri, h, rng, per_point: int = 16) -> n
 
 def _cut_layers(pts0, dirs, nrm, coef, kept, material, depths, h, share) -> ShellSample:
     """Layers of samples that keep only kept[i] of them: every point stands for its slab of the offset surface,
-    its sample's surface share times the integral of its triangle's area ratio over the slab (which keeps the total the volume
-    under the surface, per triangle); the deepest point of a cut sample takes the slab down to the middle of the
+    its sample's surface share times the integral of its triangle's area ratio over the slab (which keeps the total
+    the volume under the surface, per triangle); the deepest point of a cut sample takes the slab down to the middle of the
     body (`material`) and sits at its centre."""
     half = 0.5 * h
     pts, vols, lay, nrms, thin = [], [], [], [], []
