@@ -128,8 +128,8 @@ def prism(sides=6, radius=0.1, height=0.15):
     return V, _outward(V, faces)
 
 
-def icosphere(subdivisions=2, radius=0.1):
-    """Icosahedron subdivided and projected on the sphere: 20 * 4**s outward triangles."""
+def icosphere(subdivisions: int, radius: float = 1.0):
+    """Icosahedron subdivided and projected on the sphere: 20 * 4**s outward (counter-clockwise) triangles."""
     t = (1.0 + 5.0**0.5) / 2.0
     base = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t),
             (0, -1, -t), (0, 1, -t), (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
@@ -152,20 +152,21 @@ def icosphere(subdivisions=2, radius=0.1):
             ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
             new += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
         faces = new
-    return radius * np.array(V), [tuple(f) for f in faces]
+    return radius * np.array(V), np.array(faces, dtype=np.int64)
 
 
-def torus(R=0.1, r=0.04, nu=32, nv=16):
-    """A torus of triangles (each grid quad split in two: the quads are not planar)."""
+def torus(R=1.0, r=0.35, nu=48, nv=24):
+    """A torus about the z axis, of outward triangles (each grid quad split in two: the quads are not planar)."""
     u, v = np.meshgrid(np.arange(nu) * 2 * np.pi / nu, np.arange(nv) * 2 * np.pi / nv, indexing="ij")
-    V = np.stack([(R + r * np.cos(v)) * np.cos(u), r * np.sin(v), (R + r * np.cos(v)) * np.sin(u)], -1).reshape(-1, 3)
+    V = np.stack([(R + r * np.cos(v)) * np.cos(u), (R + r * np.cos(v)) * np.sin(u), r * np.sin(v)], -1).reshape(-1, 3)
     idx = lambda i, j: (i % nu) * nv + (j % nv)  # noqa: E731
     faces = []
     for i in range(nu):
         for j in range(nv):
             a, b, c, d = idx(i, j), idx(i + 1, j), idx(i + 1, j + 1), idx(i, j + 1)
             faces += [(a, b, c), (a, c, d)]
-    return V, faces if polygon_volume(V, faces) > 0 else [f[::-1] for f in faces]
+    T = np.array(faces, dtype=np.int64)
+    return V, T if polygon_volume(V, T) > 0 else T[:, ::-1].copy()
 
 
 # ---------------------------------------------------------------------------- writers
@@ -299,10 +300,10 @@ def write_corpus(folder: Path) -> list[CorpusMesh]:
     V, F = box_quads(n=3)
     write_off(folder / "box_quads.off", V, F)
     out.append(_entry("box_quads.off", "OFF", "quads, a comment line", V, F))
-    V, F = icosphere()
+    V, F = icosphere(2, 0.1)
     write_stl_ascii(folder / "icosphere_ascii.stl", V, F)
     out.append(_entry("icosphere_ascii.stl", "STL ascii", "triangle soup (every vertex repeated)", V, F))
-    V, F = torus()
+    V, F = torus(0.1, 0.04, 32, 16)
     write_stl_binary(folder / "torus_binary.stl", V, F)
     out.append(_entry("torus_binary.stl", "STL binary", "triangle soup, float32, header starting with 'solid'",
                       V, F))
@@ -310,7 +311,7 @@ def write_corpus(folder: Path) -> list[CorpusMesh]:
     write_ply(folder / "uv_sphere_binary.ply", V, F)
     out.append(_entry("uv_sphere_binary.ply", "PLY binary", "quads + triangles, normals, uv and colour properties",
                       V, F))
-    V, F = icosphere(1)
+    V, F = icosphere(1, 0.1)
     write_ply(folder / "icosphere_ascii.ply", V, F, binary=False)
     out.append(_entry("icosphere_ascii.ply", "PLY ascii", "triangles, extra vertex properties", V, F))
     V, F = box_quads(size=(0.15, 0.1, 0.12), n=1)
@@ -352,7 +353,7 @@ def write_broken(folder: Path, rng=None) -> list[tuple[str, str]]:
             b"property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n")
     (folder / "huge_count.ply").write_bytes(head + b"\0" * 64)
     add("huge_count.ply", "could not be read as a PLY")
-    good = write_stl_binary(folder / "truncated.stl", *icosphere()).read_bytes()
+    good = write_stl_binary(folder / "truncated.stl", *icosphere(2, 0.1)).read_bytes()
     (folder / "truncated.stl").write_bytes(good[: len(good) // 2])
     add("truncated.stl", "truncated")
     V, F = box_quads(n=2)

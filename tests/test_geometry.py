@@ -14,39 +14,13 @@ from pdmpm_cli.geometry import bvh as B
 from pdmpm_cli.geometry import mesh as M
 from pdmpm_cli.geometry import sampling as S
 from pdmpm_cli.geometry import shapes as G
+from tests.mesh_corpus import icosphere, torus
 
 DATA = Path(__file__).parent / "data"
 CUBE_OBJ = DATA / "unit_cube.obj"
 
 
 # ---------------------------------------------------------------------------- helpers
-def icosphere(subdivisions: int, radius: float = 1.0):
-    """Unit icosphere (outward, counter-clockwise): 20 * 4**s triangles."""
-    t = (1.0 + 5.0**0.5) / 2.0
-    verts = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t),
-             (0, -1, -t), (0, 1, -t), (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
-    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4),
-             (11, 10, 2), (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8),
-             (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)]
-    V = [np.array(v, float) / np.linalg.norm(v) for v in verts]
-    for _ in range(subdivisions):
-        cache, new = {}, []
-
-        def mid(a, b):
-            key = (min(a, b), max(a, b))
-            if key not in cache:
-                m = V[a] + V[b]
-                V.append(m / np.linalg.norm(m))
-                cache[key] = len(V) - 1
-            return cache[key]
-
-        for a, b, c in faces:
-            ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
-            new += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
-        faces = new
-    return radius * np.array(V), np.array(faces, dtype=np.int64)
-
-
 def cube_tris(lo=0.0, hi=1.0):
     """Outward triangulated cube [lo, hi]^3: 8 vertices, 12 triangles."""
     V = np.array([[x, y, z] for z in (lo, hi) for y in (lo, hi) for x in (lo, hi)], float)
@@ -54,18 +28,6 @@ def cube_tris(lo=0.0, hi=1.0):
     quads = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (3, 2, 6, 7), (0, 4, 6, 2), (1, 3, 7, 5)]
     T = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=np.int64)
     return V, T
-
-
-def torus(R=1.0, r=0.35, nu=48, nv=24):
-    u, v = np.meshgrid(np.arange(nu) * 2 * np.pi / nu, np.arange(nv) * 2 * np.pi / nv, indexing="ij")
-    V = np.stack([(R + r * np.cos(v)) * np.cos(u), (R + r * np.cos(v)) * np.sin(u), r * np.sin(v)], -1).reshape(-1, 3)
-    idx = lambda i, j: (i % nu) * nv + (j % nv)  # noqa: E731
-    T = []
-    for i in range(nu):
-        for j in range(nv):
-            a, b, c, d = idx(i, j), idx(i + 1, j), idx(i + 1, j + 1), idx(i, j + 1)
-            T += [(a, b, c), (a, c, d)]
-    return V, np.array(T, dtype=np.int64)
 
 
 def write(path, V, T):

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from pdmpm_cli.errors import InputError
+from pdmpm_cli.io.sink import check_order
 
 FILE_NAME = "run.usd"
 ROOT = "/pdmpm"
@@ -152,10 +153,7 @@ class UsdWriter:
 
     def write_frame(self, index: int, time: float, fields: dict[str, np.ndarray]) -> None:
         """Add frame ``index`` as time samples at time code ``time * fps`` and save the stage."""
-        if self._closed:
-            raise ValueError(f"{self.path}: writer is closed")
-        if index <= self._last_index:
-            raise ValueError(f"frame index {index} out of order: the last frame written was {self._last_index}")
+        check_order(self.path, self._closed, self._last_index, index)
         code = float(time) * self._fps
         x = np.asarray(fields[POSITION_FIELD])
         extras = {name: np.asarray(value) for name, value in fields.items()
