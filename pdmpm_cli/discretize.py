@@ -1,16 +1,18 @@
 """Scene -> material points and bonds: sampling each body in its geometry mode (cloud, shell, Voronoi), families,
 pins, initial velocity, and the meshes that ride along with the points (shell surfaces, Voronoi cells)."""
 
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
+from pydantic import BaseModel
 from scipy.spatial import cKDTree
 
 from pdmpm_cli.engine.bonds import build_families, drop_bonds
-from pdmpm_cli.errors import InputError
-from pdmpm_cli.geometry import bunny, sampling, shapes, shell, voronoi
+from pdmpm_cli.errors import InputError, SceneValueError
+from pdmpm_cli.geometry import bunny, bvh, embed, primitive_surfaces, sampling, shapes, shell, voronoi
 from pdmpm_cli.geometry import mesh as meshes
 from pdmpm_cli.scene.schema import Scene
 
@@ -22,14 +24,40 @@ class Region:
     inside: Callable[[np.ndarray], np.ndarray]
     lo: np.ndarray
     hi: np.ndarray
+    repairs: list[str] = field(default_factory=list)  # what loading changed in a mesh file
+    volume: float = 0.0  # enclosed volume of a mesh [m^3] (0: not computed)
+
+
+#: a mesh body whose particles fill less than 1 - this of its volume is reported (features thinner than h are lost)
+FILL_DEFICIT = 0.05
+
+
+@functools.lru_cache(maxsize=8)
+def _load_mesh(path: Path, stamp: tuple, shape, allow_open: bool) -> meshes.SurfaceMesh:
+    """One load per file, placement and version (`stamp`: mtime and size): the size check before sampling and the
+    sampler read the same mesh."""
+    fit = None if shape.fit is None else (shape.fit.size, shape.fit.axis, shape.fit.center)
+    return meshes.load_surface_mesh(path, scale=shape.scale, translate=shape.translate,
+                                    R=shapes.rotation_matrix(shape.rotation), units=shape.units, fit=fit,
+                                    allow_open=allow_open)
 
 
 def load_mesh_shape(shape, base_dir: Path, allow_open: bool = False) -> meshes.SurfaceMesh:
-    """A scene's `type: mesh` shape, its path relative to the scene file, placed."""
-    path = Path(shape.path)
-    path = path if path.is_absolute() else base_dir / path
-    return meshes.load_surface_mesh(path, scale=shape.scale, translate=shape.translate,
-                                    R=shapes.rotation_matrix(shape.rotation), allow_open=allow_open)
+    """A scene's `type: mesh` shape, its path relative to the scene file, placed. A problem with the file is a
+    SceneValueError about the shape's `path` key."""
+    path = Path(shape.path).expanduser()
+    path = (path if path.is_absolute() else base_dir / path).resolve()
+    try:
+        st = path.stat()
+        stamp = (st.st_mtime_ns, st.st_size)
+    except OSError:
+        stamp = None
+    try:
+        return _load_mesh(path, stamp, shape, allow_open)
+    except SceneValueError:
+        raise
+    except InputError as e:
+        raise SceneValueError(str(e), subject=shape, field="path") from None
 
 
 def shape_region(shape, base_dir: Path) -> Region:
@@ -37,7 +65,7 @@ def shape_region(shape, base_dir: Path) -> Region:
     if shape.type == "mesh":
         mesh = load_mesh_shape(shape, base_dir)
         lo, hi = meshes.mesh_bounds(mesh)
-        return Region(lambda p: meshes.inside_mesh(mesh, p), lo, hi)
+        return Region(lambda p: bvh.inside_mesh(mesh, p), lo, hi, list(mesh.repairs), meshes.mesh_volume(mesh))
     if shape.type == "sheet":
         raise InputError("a sheet has no inside: use it as the surface of a `mode: shell` body")
     c = np.asarray(shape.center, dtype=np.float64)
@@ -116,7 +144,7 @@ class BodySample:
 
 
 def primitive_kwargs(shape) -> dict:
-    """Size parameters of a primitive shape, as shell.primitive_surface takes them."""
+    """Size parameters of a primitive shape, as primitive_surfaces.primitive_surface takes them."""
     names = {"box": ("size",), "sheet": ("size",), "sphere": ("radius",), "cylinder": ("radius", "height"),
              "capsule": ("radius", "length")}[shape.type]
     return {k: getattr(shape, k) for k in names}
@@ -144,7 +172,12 @@ def sample_cloud(body, base_dir: Path, dx: float, rng) -> BodySample:
             raise
         raise InputError(f"body '{body.name}': no particles: its shape is empty after the cutouts, or smaller "
                          f"than the spacing {h:.4g} m; enlarge the shape or lower geometry.spacing")
-    return BodySample(x, np.full(len(x), h**3), h, geo.horizon * h)
+    repairs = region.repairs + [r for cut in cuts for r in cut.repairs]
+    if region.volume and not cuts and len(x) * h**3 < (1.0 - FILL_DEFICIT) * region.volume:
+        repairs.append(f"its {len(x)} particles fill only {100 * len(x) * h**3 / region.volume:.0f} % of the mesh's "
+                       f"volume: parts thinner than the spacing h = {h:.3g} m got no particles. Use a smaller "
+                       f"geometry.spacing to keep them")
+    return BodySample(x, np.full(len(x), h**3), h, geo.horizon * h, repairs=repairs)
 
 
 def body_surface(shape, base_dir: Path, edge: float, allow_open: bool) -> meshes.SurfaceMesh:
@@ -155,7 +188,18 @@ def body_surface(shape, base_dir: Path, edge: float, allow_open: bool) -> meshes
     R = shapes.rotation_matrix(getattr(shape, "rotation", (0.0, 0.0, 0.0)))
     if shape.type == "bunny":
         return bunny.bunny_surface(c, shape.height, R, edge)
-    return shell.primitive_surface(shape.type, center=c, R=R, edge=edge, **primitive_kwargs(shape))
+    return primitive_surfaces.primitive_surface(shape.type, center=c, R=R, edge=edge, **primitive_kwargs(shape))
+
+
+def shown_surface(surface, shape, edge: float) -> tuple[np.ndarray, np.ndarray]:
+    """The triangles that ride along with a shell: a mesh file's refined to `edge` (a coarse file's flat triangles
+    could not bend with the particles under them), a built-in shape's as triangulated at that edge already."""
+    if shape.type != "mesh":
+        return surface.vertices, surface.triangles
+    try:
+        return embed.refine_surface(surface.vertices, surface.triangles, edge)
+    except ValueError as e:
+        raise SceneValueError(f"{e}; set a larger geometry.edge", subject=shape) from None
 
 
 def sample_shell(body, base_dir: Path, dx: float, rng) -> BodySample:
@@ -166,10 +210,10 @@ def sample_shell(body, base_dir: Path, dx: float, rng) -> BodySample:
     sample = shell.shell_particles(surface, h, geo.layers, rng, what=f"body '{body.name}'",
                                    first_depth=0.5 if geo.layers > 1 else 0.0)
     sample = shell.thin_crowded(sample, h)
-    idx, w = shell.embed_points(surface.vertices, sample.points)
-    mesh = EmbeddedMesh(body.name, -1, "surface", surface.vertices, surface.triangles, idx, w,
-                        np.zeros(0, np.int64))
-    repairs = list(surface.repairs)
+    V, T = shown_surface(surface, geo.surface, geo.edge or h)
+    idx, w = embed.embed_points(V, sample.points)
+    mesh = EmbeddedMesh(body.name, -1, "surface", V, T, idx, w, np.zeros(0, np.int64))
+    repairs = list(surface.repairs) + sample.notes
     if not surface.closed and geo.layers > 1:
         repairs.append(f"the surface is open (it has holes or edges), so its {geo.layers} layers go against its "
                        f"normals; if it should be closed, fill its holes (Blender: Select > All by Trait > Non "
@@ -236,7 +280,153 @@ def pin_particles(pin, body, sample: BodySample, base_dir: Path) -> np.ndarray:
 
 
 def discretize(scene: Scene, base_dir: Path) -> Discretization:
-    """Sample every body, check it fits the domain, and build its bonds."""
+    """Check every body's size against the domain, sample it, build its bonds, and note where the particles will
+    not behave as the body was drawn. A problem with a shape is a SceneValueError naming its scene key."""
+    try:
+        check_sizes(scene, base_dir)
+        disc = sample_bodies(scene, base_dir)
+    except SceneValueError as e:
+        raise keyed(e, scene) from None
+    disc.notes += family_notes(scene, disc)
+    return disc
+
+
+def keyed(error: SceneValueError, scene: Scene) -> SceneValueError:
+    """The error with its scene key: the path to the object it is about (found by identity) and its field."""
+    if error.key or error.subject is None:
+        return error
+    path = _path_to(scene, error.subject)
+    if path is None:
+        return error
+    return SceneValueError(error.message, key=path + ((error.field,) if error.field else ()))
+
+
+def _path_to(node, target, path=()):
+    if node is target:
+        return path
+    if isinstance(node, BaseModel):
+        items = ((name, getattr(node, name)) for name in type(node).model_fields)
+    elif isinstance(node, (list, tuple)):
+        items = enumerate(node)
+    else:
+        return None
+    for key, child in items:
+        if (found := _path_to(child, target, path + (key,))) is not None:
+            return found
+    return None
+
+
+_EXTENT_WORDS = ("wide (along x)", "tall (along y)", "deep (along z)")
+
+
+def shape_bounds(shape, base_dir: Path, allow_open: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned bounds [m] of a body's shape or surface, without sampling it (a mesh file is loaded)."""
+    if shape.type == "sheet":
+        R = shapes.rotation_matrix(shape.rotation)
+        corners = np.array([[sx * shape.size[0], sy * shape.size[1], 0.0] for sx in (-0.5, 0.5) for sy in (-0.5, 0.5)])
+        x = np.asarray(shape.center) + corners @ R.T
+        return x.min(axis=0), x.max(axis=0)
+    if shape.type == "mesh":
+        return meshes.mesh_bounds(load_mesh_shape(shape, base_dir, allow_open=allow_open))
+    region = shape_region(shape, base_dir)
+    return region.lo, region.hi
+
+
+def check_sizes(scene: Scene, base_dir: Path) -> None:
+    """Refuse a body wider than the domain's usable part (3.5 cells inside the walls) or wholly outside the domain,
+    from its bounding box, before any sampling: a mesh in millimetres read as metres would otherwise be sampled in
+    full (minutes) before the particle check refuses it."""
+    dx = scene.grid.cell_size
+    dom_lo, dom_hi = np.asarray(scene.grid.domain.min), np.asarray(scene.grid.domain.max)
+    room = dom_hi - dom_lo - 7.0 * dx
+    for body in scene.bodies:
+        geo = body.geometry
+        shape = geo.surface if geo.mode == "shell" else geo.shape
+        lo, hi = shape_bounds(shape, base_dir, allow_open=geo.mode == "shell")
+        ext = hi - lo
+        a = int(np.argmax(ext - room))
+        size = " x ".join(f"{e:.3g}" for e in ext)
+        if ext[a] > room[a] + dx:
+            raise SceneValueError(
+                f"body '{body.name}' is {ext[a]:.3g} m {_EXTENT_WORDS[a]}, but the domain is "
+                f"{dom_hi[a] - dom_lo[a]:.3g} m "
+                f"(particles must keep 3.5 cells from its walls: {room[a]:.3g} m usable); the body's bounding box is "
+                f"{size} m. Fix: {_size_fix(shape, ext, room)}", subject=shape)
+        if np.any(hi < dom_lo) or np.any(lo > dom_hi):
+            raise SceneValueError(
+                f"body '{body.name}' lies outside the domain: its bounding box spans {np.round(lo, 4).tolist()} to "
+                f"{np.round(hi, 4).tolist()} m, the domain {dom_lo.tolist()} to {dom_hi.tolist()} m. Fix: move the "
+                f"body into the domain" + (" (translate, or fit.center)" if shape.type == "mesh" else ""),
+                subject=shape)
+
+
+def _size_fix(shape, ext, room) -> str:
+    if shape.type != "mesh":
+        return "make the shape smaller or grid.domain larger"
+    for unit, factor in (("mm", 1e-3), ("cm", 1e-2)):
+        if shape.units == "m" and np.all(ext * factor <= room):
+            return (f"if the file is in {'millimetres' if unit == 'mm' else 'centimetres'}, set units: {unit}; or fit "
+                    f"it to a size (fit: {{size: ..., center: [...]}}), or scale it down")
+    return "fit it to a size (fit: {size: ..., center: [...]}) or scale it down, or make grid.domain larger"
+
+
+#: particles with fewer bonds than this are reported (a particle needs about 4 neighbours not to rotate freely)
+MIN_BONDS = 4
+#: loose or flat particles are reported when they are more than this fraction of a body (a cloth's corners are not)
+REPORT_FRACTION = 0.005
+#: a cloud particle whose family's smallest direction moment is below this fraction of its largest sits in a
+#: layer about one particle thick
+FLAT_FAMILY = 0.1
+
+
+def family_notes(scene: Scene, disc) -> list[str]:
+    """Warnings where the particles will not behave as the drawn body: particles with fewer than MIN_BONDS bonds
+    (loose, or barely held), and cloud particles whose bonds lie in one plane or along one line: features thinner
+    than the spacing, one particle thick, which bend and stretch far more easily than the material would."""
+    notes = []
+    count = np.diff(disc.bond_start)
+    for body, (start, end), h in zip(scene.bodies, disc.body_ranges, disc.body_spacing):
+        if body.geometry.mode == "voronoi" or end == start:
+            continue
+        n = count[start:end]
+        few = int((n < MIN_BONDS).sum())
+        if (n == 0).any() or few > REPORT_FRACTION * (end - start):
+            none = int((n == 0).sum())
+            at = disc.rest_x[start + int(np.argmin(n))]
+            notes.append(f"body '{body.name}': {few} of {end - start} particles have fewer than {MIN_BONDS} bonds "
+                         f"({none} have none), e.g. at {_fmt(at)}: they sit in features thinner than the spacing "
+                         f"h = {h:.3g} m and will move loosely. Use a smaller geometry.spacing or thicken those parts")
+        if body.geometry.mode != "cloud":
+            continue
+        flat = flat_families(disc.rest_x, disc.bond_start, disc.bond_nbr, start, end) & (n >= MIN_BONDS)
+        if flat.sum() > REPORT_FRACTION * (end - start):
+            at = disc.rest_x[start + int(np.flatnonzero(flat)[0])]
+            notes.append(f"body '{body.name}': {int(flat.sum())} of {end - start} particles lie in features about "
+                         f"one particle thick (thinner than about 2 h = {2 * h:.3g} m), e.g. at {_fmt(at)}: those "
+                         f"parts will bend and stretch much more easily than the material. Use a smaller "
+                         f"geometry.spacing to resolve them")
+    return notes
+
+
+def flat_families(x, bond_start, bond_nbr, start, end) -> np.ndarray:
+    """Bool per particle of start..end: its bond directions span fewer than three dimensions (smallest eigenvalue
+    of sum xi xi^T / |xi|^2 below FLAT_FAMILY times the largest)."""
+    b0, b1 = bond_start[start], bond_start[end]
+    p = np.repeat(np.arange(end - start), np.diff(bond_start[start:end + 1]))
+    xi = x[bond_nbr[b0:b1]] - x[start + p]
+    xi /= np.linalg.norm(xi, axis=1)[:, None]
+    outer = (xi[:, :, None] * xi[:, None, :]).reshape(-1, 9)
+    K = np.stack([np.bincount(p, outer[:, k], minlength=end - start) for k in range(9)], 1).reshape(-1, 3, 3)
+    lam = np.linalg.eigvalsh(K)
+    return lam[:, 0] < FLAT_FAMILY * np.maximum(lam[:, 2], 1e-300)
+
+
+def _fmt(x) -> str:
+    return "(" + ", ".join(f"{v:.4g}" for v in x) + ")"
+
+
+def sample_bodies(scene: Scene, base_dir: Path) -> Discretization:
+    """Sample every body, check its particles keep clear of the walls, and build its bonds."""
     rng = np.random.default_rng(scene.simulation.seed)
     dx = scene.grid.cell_size
     inner_lo = np.asarray(scene.grid.domain.min) + 3.5 * dx

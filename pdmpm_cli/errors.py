@@ -17,3 +17,17 @@ class SimulationError(PdmpmError):
     """The simulation failed (NaN, runaway energy, particles leaving the domain). Exit code 1."""
 
     exit_code = 1
+
+
+class SceneValueError(InputError):
+    """Bad input the schema cannot see (a broken mesh file, a body larger than the domain), tied to the scene key
+    whose value causes it: `key` (a path such as ('bodies', 0, 'geometry', 'shape', 'path')), or, until the caller
+    knows where it sits, the scene object `subject` it concerns and the `field` of it. The runner points the
+    message at the key's line in the scene file (`scene.loader.locate`)."""
+
+    def __init__(self, message: str, key: tuple = (), subject=None, field: str = ""):
+        super().__init__(message)
+        self.message, self.key, self.subject, self.field = message, tuple(key), subject, field
+
+    def __str__(self) -> str:
+        return f"{'.'.join(map(str, self.key))}: {self.message}" if self.key else self.message

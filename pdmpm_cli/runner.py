@@ -19,10 +19,10 @@ from pdmpm_cli.engine.model import Model
 from pdmpm_cli.engine.plan import Plan
 from pdmpm_cli.engine.solver import Solver, initial_state
 from pdmpm_cli.engine.state import State
-from pdmpm_cli.errors import InputError
+from pdmpm_cli.errors import InputError, SceneValueError
 from pdmpm_cli.io.lock import LOCK_NAME, OutputLock
 from pdmpm_cli.plan import make_plan
-from pdmpm_cli.scene.loader import load_scene
+from pdmpm_cli.scene.loader import load_scene, locate
 from pdmpm_cli.scene.schema import Scene
 
 
@@ -44,7 +44,11 @@ def prepare(path, overrides=(), variant: str | None = None) -> Prepared:
     """Load and validate the scene file (with one of its variants), discretise it, and make the Plan."""
     path = Path(path)
     scene, text = load_scene(path, Scene, list(overrides), variant)
-    return dataclasses.replace(prepare_scene(scene, path, text), overrides=tuple(overrides), variant=variant)
+    try:
+        prep = prepare_scene(scene, path, text)
+    except SceneValueError as e:  # a broken mesh file, a body larger than the domain: point at the scene's line
+        raise locate(e, path, text, overrides, variant) from None
+    return dataclasses.replace(prep, overrides=tuple(overrides), variant=variant)
 
 
 def prepare_resume(out: Path, scene=None, overrides=(), variant: str | None = None
@@ -139,7 +143,7 @@ def prepare_output_dir(out: Path, overwrite: bool):
             resumable = " (or --resume it from its checkpoint)" if (out / checkpoint.FOLDER).is_dir() else ""
             raise InputError(f"{out}: output folder is not empty; pass --overwrite to replace it{resumable}, or "
                              f"choose another folder with --out")
-        for name in ("run.h5",):
+        for name in ("run.h5", "run.usd"):
             (out / name).unlink(missing_ok=True)
         for sub in ("vtk", "meshes", checkpoint.FOLDER):
             if (out / sub).is_dir():
@@ -168,7 +172,20 @@ def _writers(prep: Prepared, out: Path, static: dict, keep: int) -> list:
     if meshes and scene.output.meshes:
         writers.append(MeshSeriesWriter.reopen(out / "meshes", meshes, keep) if keep else
                        MeshSeriesWriter(out / "meshes", meshes))
+    if scene.output.usd:
+        writers.append(_usd_writer(prep, out, keep))
     return writers
+
+
+def _usd_writer(prep: Prepared, out: Path, keep: int):
+    """The run's USD stage (io.usd): each body's particle range, width (its spacing) and embedded meshes."""
+    from pdmpm_cli.io import usd
+
+    bodies = [usd.UsdBody(b.name, s, e, float(h)) for b, (s, e), h in
+              zip(prep.scene.bodies, prep.disc.body_ranges, prep.disc.body_spacing)]
+    layout = {"fps": 1.0 / prep.plan.frame_dt, "bodies": bodies, "meshes": prep.disc.meshes}
+    path = out / usd.FILE_NAME
+    return usd.UsdWriter.reopen(path, frames=keep, **layout) if keep else usd.UsdWriter(path, **layout)
 
 
 def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwrite: bool = False,
@@ -181,6 +198,10 @@ def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwr
 
     scene, plan, model = prep.scene, prep.plan, prep.model
     solver = Solver(model, plan)  # before touching the output folder: a missing GPU loses no earlier run
+    if scene.output.usd:  # likewise a missing usd-core
+        from pdmpm_cli.io.usd import require
+
+        require()
     with OutputLock(out):
         if resume is None:
             prepare_output_dir(out, overwrite)

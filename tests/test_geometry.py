@@ -10,42 +10,17 @@ import pytest
 from scipy.spatial import cKDTree
 
 from pdmpm_cli.errors import InputError
+from pdmpm_cli.geometry import bvh as B
 from pdmpm_cli.geometry import mesh as M
 from pdmpm_cli.geometry import sampling as S
 from pdmpm_cli.geometry import shapes as G
+from tests.mesh_corpus import icosphere, torus
 
 DATA = Path(__file__).parent / "data"
 CUBE_OBJ = DATA / "unit_cube.obj"
 
 
 # ---------------------------------------------------------------------------- helpers
-def icosphere(subdivisions: int, radius: float = 1.0):
-    """Unit icosphere (outward, counter-clockwise): 20 * 4**s triangles."""
-    t = (1.0 + 5.0**0.5) / 2.0
-    verts = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t),
-             (0, -1, -t), (0, 1, -t), (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
-    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4),
-             (11, 10, 2), (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8),
-             (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)]
-    V = [np.array(v, float) / np.linalg.norm(v) for v in verts]
-    for _ in range(subdivisions):
-        cache, new = {}, []
-
-        def mid(a, b):
-            key = (min(a, b), max(a, b))
-            if key not in cache:
-                m = V[a] + V[b]
-                V.append(m / np.linalg.norm(m))
-                cache[key] = len(V) - 1
-            return cache[key]
-
-        for a, b, c in faces:
-            ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
-            new += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
-        faces = new
-    return radius * np.array(V), np.array(faces, dtype=np.int64)
-
-
 def cube_tris(lo=0.0, hi=1.0):
     """Outward triangulated cube [lo, hi]^3: 8 vertices, 12 triangles."""
     V = np.array([[x, y, z] for z in (lo, hi) for y in (lo, hi) for x in (lo, hi)], float)
@@ -53,18 +28,6 @@ def cube_tris(lo=0.0, hi=1.0):
     quads = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (3, 2, 6, 7), (0, 4, 6, 2), (1, 3, 7, 5)]
     T = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=np.int64)
     return V, T
-
-
-def torus(R=1.0, r=0.35, nu=48, nv=24):
-    u, v = np.meshgrid(np.arange(nu) * 2 * np.pi / nu, np.arange(nv) * 2 * np.pi / nv, indexing="ij")
-    V = np.stack([(R + r * np.cos(v)) * np.cos(u), (R + r * np.cos(v)) * np.sin(u), r * np.sin(v)], -1).reshape(-1, 3)
-    idx = lambda i, j: (i % nu) * nv + (j % nv)  # noqa: E731
-    T = []
-    for i in range(nu):
-        for j in range(nv):
-            a, b, c, d = idx(i, j), idx(i + 1, j), idx(i + 1, j + 1), idx(i, j + 1)
-            T += [(a, b, c), (a, c, d)]
-    return V, np.array(T, dtype=np.int64)
 
 
 def write(path, V, T):
@@ -281,7 +244,7 @@ def test_unit_cube_obj_quads():
     p = RNG.uniform(-0.5, 1.5, (20000, 3))
     away = np.all(np.abs(p - 0.5) < 0.49, axis=1) | np.any(np.abs(p - 0.5) > 0.51, axis=1)
     expect = np.all((p >= 0) & (p <= 1), axis=1)
-    assert np.array_equal(M.inside_mesh(m, p[away]), expect[away])
+    assert np.array_equal(B.inside_mesh(m, p[away]), expect[away])
 
 
 def test_polygon_faces_are_fan_triangulated(tmp_path):
@@ -303,7 +266,7 @@ def test_mesh_placement_scale_rotate_translate():
     assert math.isclose(M.mesh_volume(m), 8.0)
     lo, hi = M.mesh_bounds(m)  # x = R (2 x_file) + t: x in [8, 10], y in [0, 2]
     assert np.allclose(lo, [8, 0, 0]) and np.allclose(hi, [10, 2, 2])
-    assert M.inside_mesh(m, [[9.0, 1.0, 1.0], [11.0, 1.0, 1.0]]).tolist() == [True, False]
+    assert B.inside_mesh(m, [[9.0, 1.0, 1.0], [11.0, 1.0, 1.0]]).tolist() == [True, False]
     m2 = M.load_surface_mesh(CUBE_OBJ, scale=(1.0, 2.0, 3.0))
     assert math.isclose(M.mesh_volume(m2), 6.0)
     with pytest.raises(InputError, match="scale"):
@@ -322,10 +285,10 @@ def test_icosphere_formats_inside_and_volume(tmp_path, ext):
     p = [1.0, 2.0, 3.0] + RNG.uniform(-0.7, 0.7, (20000, 3))
     r = np.linalg.norm(p - [1.0, 2.0, 3.0], axis=1)
     away = np.abs(r - 0.5) > 0.01  # the polyhedron deviates < 0.003 from the sphere
-    assert np.array_equal(M.inside_mesh(m, p[away]), r[away] < 0.5)
+    assert np.array_equal(B.inside_mesh(m, p[away]), r[away] < 0.5)
     # fill with jittered points: volume within 3 % of the mesh volume
     lo, hi = M.mesh_bounds(m)
-    pts = S.fill_shape(lambda q: M.inside_mesh(m, q), lo, hi, 0.02, sampling="jittered",
+    pts = S.fill_shape(lambda q: B.inside_mesh(m, q), lo, hi, 0.02, sampling="jittered",
                        rng=np.random.default_rng(3))
     assert abs(pts.shape[0] * 0.02**3 / vol - 1) < 0.03
 
@@ -355,7 +318,7 @@ def test_inverted_cube_is_flipped(tmp_path):
     m = M.load_surface_mesh(write(tmp_path / "inv.obj", V, T[:, ::-1]))
     assert math.isclose(M.mesh_volume(m), 1.0)
     assert any("flipped" in r for r in m.repairs)
-    assert M.inside_mesh(m, [[0.5, 0.5, 0.5], [1.5, 0.5, 0.5]]).tolist() == [True, False]
+    assert B.inside_mesh(m, [[0.5, 0.5, 0.5], [1.5, 0.5, 0.5]]).tolist() == [True, False]
 
 
 def test_cube_with_missing_face_not_closed(tmp_path):
@@ -400,7 +363,7 @@ def test_missing_garbage_and_unknown_files(tmp_path, monkeypatch):
     with pytest.raises(InputError, match="garbage.stl"):
         M.load_surface_mesh("garbage.stl")
     (tmp_path / "shape.xyz1").write_text("1 2 3\n")
-    with pytest.raises(InputError, match=r"Supported extensions: .*\.obj.*\.stl"):
+    with pytest.raises(InputError, match=r"extensions read are .*\.obj.*\.stl"):
         M.load_surface_mesh("shape.xyz1")
 
 
@@ -416,26 +379,26 @@ def test_hierarchical_winding_number_equals_bruteforce():
         normal /= np.linalg.norm(normal, axis=1)[:, None]
         near = np.vstack([near + 1e-7 * normal, near - 1e-7 * normal, Vv + 1e-6])  # ... just off them
         P = np.vstack([far, near])
-        w = M.winding_number(m, P)
-        wb = M._winding_number_bruteforce(P, m.vertices, m.triangles)
+        w = B.winding_number(m, P)
+        wb = B._winding_number_bruteforce(P, m.vertices, m.triangles)
         assert np.abs(w - wb).max() < 1e-9
         n = near.shape[0] - Vv.shape[0]
-        assert np.all(M.inside_mesh(m, near[n // 2: n]))
-        assert not np.any(M.inside_mesh(m, near[: n // 2]))
+        assert np.all(B.inside_mesh(m, near[n // 2: n]))
+        assert not np.any(B.inside_mesh(m, near[: n // 2]))
 
 
 def test_torus_hole_and_cavity():
     V, T = torus()
     Vv, Tv, _ = M.validate_surface(V, T, "torus")
     m = M.SurfaceMesh(Vv, Tv)
-    assert M.inside_mesh(m, [[0, 0, 0], [1.0, 0, 0], [0, -1.0, 0.1], [1.5, 0, 0]]).tolist() == [False, True, True, False]
+    assert B.inside_mesh(m, [[0, 0, 0], [1.0, 0, 0], [0, -1.0, 0.1], [1.5, 0, 0]]).tolist() == [False, True, True, False]
     # cube with an inner, inverted cube: a cavity
     Vo, To = cube_tris(0.0, 1.0)
     Vi, Ti = cube_tris(0.25, 0.75)
     Vc, Tc, rep = M.validate_surface(np.vstack([Vo, Vi]), np.vstack([To, Ti[:, ::-1] + 8]), "hollow")
     hollow = M.SurfaceMesh(Vc, Tc)
     assert math.isclose(M.mesh_volume(hollow), 1.0 - 0.125) and rep == []
-    assert M.inside_mesh(hollow, [[0.5, 0.5, 0.5], [0.1, 0.5, 0.5]]).tolist() == [False, True]
+    assert B.inside_mesh(hollow, [[0.5, 0.5, 0.5], [0.1, 0.5, 0.5]]).tolist() == [False, True]
 
 
 @pytest.mark.slow
@@ -445,11 +408,11 @@ def test_winding_number_benchmark():
     m = M.SurfaceMesh(Vv, Tv)
     assert m.n_triangles == 10_000
     P = RNG.uniform([-1.5, -1.5, -0.5], [1.5, 1.5, 0.5], (100_000, 3))
-    M.winding_number(m, P[:10])  # compile / load the cache, build the hierarchy
+    B.winding_number(m, P[:10])  # compile / load the cache, build the hierarchy
     t0 = time.perf_counter()
-    w = M.winding_number(m, P)
+    w = B.winding_number(m, P)
     dt = time.perf_counter() - t0
     print(f"\nwinding number: {P.shape[0]} points x {m.n_triangles} triangles: {dt:.2f} s")
-    wb = M._winding_number_bruteforce(P[:1000], m.vertices, m.triangles)
+    wb = B._winding_number_bruteforce(P[:1000], m.vertices, m.triangles)
     assert np.abs(w[:1000] - wb).max() < 1e-9
     assert dt < 10.0

@@ -205,11 +205,12 @@ def test_mesh_with_hole_or_flipped_normals_gets_a_clear_message(sim_factory, tmp
 def test_shell_layers_filling_a_thin_beam_are_thinned_without_losing_volume():
     """Layers from opposite faces of a 0.1 m beam meet inside it: crowded points merge, volume is kept."""
     from pdmpm_cli.geometry import shell
+    from pdmpm_cli.geometry.primitive_surfaces import primitive_surface
     from pdmpm_cli.geometry.shapes import rotation_matrix
 
     h = 0.0125
-    surface = shell.primitive_surface("box", center=np.zeros(3), R=rotation_matrix((0, 0, 0)), edge=h,
-                                      size=(0.6, 0.1, 0.1))
+    surface = primitive_surface("box", center=np.zeros(3), R=rotation_matrix((0, 0, 0)), edge=h,
+                                size=(0.6, 0.1, 0.1))
     raw = shell.shell_particles(surface, h, 4, np.random.default_rng(0), first_depth=0.5)
     thin = shell.thin_crowded(raw, h)
     from scipy.spatial import cKDTree

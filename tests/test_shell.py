@@ -7,7 +7,9 @@ import pytest
 from scipy.spatial import cKDTree
 
 from pdmpm_cli.errors import InputError
+from pdmpm_cli.geometry import embed as E
 from pdmpm_cli.geometry import mesh as M
+from pdmpm_cli.geometry import primitive_surfaces as PS
 from pdmpm_cli.geometry import shapes as G
 from pdmpm_cli.geometry import shell as S
 
@@ -45,7 +47,7 @@ def box_offset_area(a, b, c, d):
 @pytest.mark.parametrize("R", [np.eye(3), ROT])
 def test_closed_primitives(kind, kw, volume, rtol, R):
     edge = 0.015  # vertices on the true surface: the volume deficit is about 0.45 (edge / radius)^2
-    m = S.primitive_surface(kind, center=CENTER, R=R, edge=edge, **kw)
+    m = PS.primitive_surface(kind, center=CENTER, R=R, edge=edge, **kw)
     assert m.closed and m.repairs == []
     V, T, repairs = M.validate_surface(m.vertices, m.triangles, "again")  # closed, manifold, oriented
     assert repairs == [] and np.array_equal(T, m.triangles)  # not flipped: outward already
@@ -57,7 +59,7 @@ def test_closed_primitives(kind, kw, volume, rtol, R):
 
 
 def test_sheet_primitive_is_open_with_exact_area():
-    m = S.primitive_surface("sheet", center=CENTER, R=ROT, edge=0.03, size=(1.0, 0.5))
+    m = PS.primitive_surface("sheet", center=CENTER, R=ROT, edge=0.03, size=(1.0, 0.5))
     assert not m.closed
     assert math.isclose(area(m), 0.5, rel_tol=1e-9)
     L = edge_lengths(m)
@@ -73,13 +75,13 @@ def test_sheet_primitive_is_open_with_exact_area():
 
 def test_primitive_errors():
     with pytest.raises(InputError, match="unknown surface primitive 'torus'"):
-        S.primitive_surface("torus", center=(0, 0, 0), R=np.eye(3), edge=0.1)
+        PS.primitive_surface("torus", center=(0, 0, 0), R=np.eye(3), edge=0.1)
     with pytest.raises(InputError, match="radius is required"):
-        S.primitive_surface("sphere", center=(0, 0, 0), R=np.eye(3), edge=0.1)
+        PS.primitive_surface("sphere", center=(0, 0, 0), R=np.eye(3), edge=0.1)
     with pytest.raises(InputError, match="2 positive lengths"):
-        S.primitive_surface("sheet", center=(0, 0, 0), R=np.eye(3), edge=0.1, size=(1.0, 0.0))
+        PS.primitive_surface("sheet", center=(0, 0, 0), R=np.eye(3), edge=0.1, size=(1.0, 0.0))
     with pytest.raises(InputError, match="edge of at least"):
-        S.primitive_surface("box", center=(0, 0, 0), R=np.eye(3), edge=1e-5, size=(1, 1, 1))
+        PS.primitive_surface("box", center=(0, 0, 0), R=np.eye(3), edge=1e-5, size=(1, 1, 1))
 
 
 # ---------------------------------------------------------------------------- open meshes
@@ -129,7 +131,7 @@ def test_flipped_triangle_fails_in_both_modes(tmp_path):
 # ---------------------------------------------------------------------------- sampling
 def test_flat_sheet_cloth():
     h = 0.02
-    m = S.primitive_surface("sheet", center=CENTER, R=ROT, edge=0.05, size=(1.0, 0.5))
+    m = PS.primitive_surface("sheet", center=CENTER, R=ROT, edge=0.05, size=(1.0, 0.5))
     s = S.shell_particles(m, h, 1, np.random.default_rng(7))
     n = s.points.shape[0]
     assert abs(n - 0.5 / h**2) <= 0.1 * 0.5 / h**2
@@ -149,7 +151,7 @@ def test_flat_sheet_cloth():
 
 def test_open_sheet_layers_go_against_the_normal():
     h = 0.02
-    m = S.primitive_surface("sheet", center=(0, 0, 0), R=np.eye(3), edge=0.05, size=(0.6, 0.4))
+    m = PS.primitive_surface("sheet", center=(0, 0, 0), R=np.eye(3), edge=0.05, size=(0.6, 0.4))
     s = S.shell_particles(m, h, 3, np.random.default_rng(1))
     n0 = int((s.layer == 0).sum())
     assert s.points.shape[0] == 3 * n0
@@ -162,7 +164,7 @@ def test_open_sheet_layers_go_against_the_normal():
 @pytest.mark.parametrize("edge", [0.02, 0.05])
 def test_closed_box_layers(edge):
     a, b, c, h, L = 0.4, 0.2, 0.2, 0.02, 3
-    m = S.primitive_surface("box", center=CENTER, R=ROT, edge=edge, size=(a, b, c))
+    m = PS.primitive_surface("box", center=CENTER, R=ROT, edge=edge, size=(a, b, c))
     s = S.shell_particles(m, h, L, np.random.default_rng(3))
     loc = (s.points - CENTER) @ ROT
     depth = np.min(np.array([a, b, c]) / 2 - np.abs(loc), axis=1)  # distance inside the box
@@ -186,7 +188,7 @@ def test_closed_box_layers(edge):
 
 def test_sphere_layer_volumes_shrink_with_depth():
     r, h, L = 0.1, 0.01, 4
-    m = S.primitive_surface("sphere", center=CENTER, R=np.eye(3), edge=h, radius=r)
+    m = PS.primitive_surface("sphere", center=CENTER, R=np.eye(3), edge=h, radius=r)
     s = S.shell_particles(m, h, L, np.random.default_rng(5))
     per_layer = np.array([s.volumes[s.layer == k].sum() for k in range(L)])
     for k in range(L):
@@ -198,16 +200,72 @@ def test_sphere_layer_volumes_shrink_with_depth():
     assert np.allclose(np.linalg.norm(s.normals, axis=1), 1.0)
 
 
-def test_too_many_layers_for_a_thin_body():
-    m = S.primitive_surface("box", center=(0, 0, 0), R=ROT, edge=0.01, size=(0.4, 0.2, 0.04))
-    assert S.shell_particles(m, 0.01, 2, np.random.default_rng(0)).points.shape[0] > 0  # 2 h < half thickness
+def test_layers_deeper_than_a_thin_body_are_cut_locally():
+    """Layers that would overlap across a plate are cut where it is thin, and the deepest kept point fills the
+    plate to its middle: the volume is the plate's (its layers' slabs reach h/2 outside: first_depth 0)."""
+    a, b, c, h = 0.4, 0.2, 0.04, 0.01
+    m = PS.primitive_surface("box", center=(0, 0, 0), R=ROT, edge=h, size=(a, b, c))
+    assert S.shell_particles(m, h, 2, np.random.default_rng(0)).notes == []  # 2 h fits in half the thickness
     for layers in (3, 4):  # layers * h exceeds half of the 0.04 m thickness
-        with pytest.raises(InputError, match=r"(?s)layers.*thicker than the body.*fewer layers \(at most 2"):
-            S.shell_particles(m, 0.01, layers, np.random.default_rng(0), what="body 'plate'")
+        s = S.shell_particles(m, h, layers, np.random.default_rng(0), what="body 'plate'")
+        assert len(s.notes) == 1 and "thinner than its" in s.notes[0] and f"{layers} layers" in s.notes[0]
+        assert s.layer.max() == 1  # 0 and h fit: 2 h + h/2 <= 0.04 m
+        assert math.isclose(s.volumes.sum(), (a + h) * (b + h) * (c + h), rel_tol=0.01)
+        depth = np.min(np.array([a, b, c]) / 2 - np.abs(s.points @ ROT), axis=1)
+        assert depth.min() >= -1e-12 and depth.max() <= c / 2 + 1e-12  # inside, none past the middle
+
+
+@pytest.mark.parametrize("c", [0.006, 0.013, 0.025])
+def test_plate_thinner_than_its_layers_gets_its_own_volume(c):
+    """A plate 0.6 to 2.5 spacings thick asked for 4 layers (first_depth 1/2, as shell bodies): one layer per
+    side, its points at the centre of their half of the plate, the total the plate's volume within 1 %."""
+    a, b, h = 0.4, 0.2, 0.01
+    m = PS.primitive_surface("box", center=CENTER, R=ROT, edge=h, size=(a, b, c))
+    s = S.thin_crowded(S.shell_particles(m, h, 4, np.random.default_rng(2), first_depth=0.5), h)
+    print(f"plate {c} m thick, 4 layers at h = {h} m: volume / plate volume - 1 = "
+          f"{s.volumes.sum() / (a * b * c) - 1:+.2%}")
+    assert math.isclose(s.volumes.sum(), a * b * c, rel_tol=0.01)
+    z = np.abs((s.points - CENTER) @ ROT[:, 2])
+    faces = np.abs(s.normals @ ROT[:, 2]) > 0.9
+    assert np.allclose(z[faces & (s.layer == 0)], c / 4, atol=1e-9 * c) or c < 0.0101  # thinnest: merged pairs
+    d, _ = cKDTree(s.points).query(s.points, k=2)
+    assert d[:, 1].min() >= 0.5 * h * min(1.0, c / h)  # crowded points from both sides merged
+
+
+def test_bunny_shell_layers_fill_the_shell_volume():
+    """The bunny with 4 layers at h = 5 mm: thin ears and feet get fewer layers instead of a refusal; the
+    particles' volume is the volume within 4 h of the surface (Monte Carlo: winding number and the distance
+    to a dense surface sample) within 3 %."""
+    from pdmpm_cli.geometry import bunny, bvh
+
+    hgt, h, L = 0.2, 0.005, 4
+    surf = bunny.bunny_surface((0.0, 0.0, 0.0), hgt, np.eye(3), h)
+    s = S.shell_particles(surf, h, L, np.random.default_rng(0), first_depth=0.5)
+    assert s.notes and "fewer layers" in s.notes[0]
+    rng = np.random.default_rng(1)
+    P = surf.vertices[surf.triangles]
+    w = rng.dirichlet((1.0, 1.0, 1.0), 400_000)
+    tri = rng.choice(len(P), 400_000, p=area_weights(P))
+    dense = np.einsum("ik,ikd->id", w, P[tri])  # uniform on the surface, about 0.2 mm apart
+    lo, hi = surf.vertices.min(axis=0), surf.vertices.max(axis=0)
+    q = rng.uniform(lo, hi, (150_000, 3))
+    q = q[bvh.inside_mesh(surf, q)]
+    tree = cKDTree(dense, balanced_tree=False, compact_nodes=False)  # the balanced tree is slow from inside
+    near = tree.query(q, distance_upper_bound=L * h)[0] < L * h
+    shell = np.prod(hi - lo) * near.sum() / 150_000
+    full = int((s.layer == L - 1).sum())
+    print(f"bunny, {L} layers at h = {h} m: {full} of {int((s.layer == 0).sum())} surface samples keep all layers; "
+          f"volume / volume within {L} h of the surface - 1 = {s.volumes.sum() / shell - 1:+.2%}")
+    assert math.isclose(s.volumes.sum(), shell, rel_tol=0.03)
+
+
+def area_weights(P):
+    a = np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1)
+    return a / a.sum()
 
 
 def test_shell_argument_errors():
-    m = S.primitive_surface("sheet", center=(0, 0, 0), R=np.eye(3), edge=0.1, size=(0.5, 0.5))
+    m = PS.primitive_surface("sheet", center=(0, 0, 0), R=np.eye(3), edge=0.1, size=(0.5, 0.5))
     rng = np.random.default_rng(0)
     with pytest.raises(InputError, match="layers must be a whole number >= 1"):
         S.shell_particles(m, 0.02, 0, rng)
@@ -224,7 +282,7 @@ def test_embed_points():
     rng = np.random.default_rng(11)
     X = rng.uniform(-1.0, 1.0, (400, 3))
     P = rng.uniform(-0.8, 0.8, (60, 3))
-    idx, w = S.embed_points(P, X, k=8)
+    idx, w = E.embed_points(P, X, k=8)
     assert idx.shape == (60, 8) and idx.dtype == np.int64 and w.dtype == np.float64
     assert np.all(w > 0.0) and np.allclose(w.sum(axis=1), 1.0, atol=1e-14)
     brute = np.argsort(np.linalg.norm(P[:, None] - X[None], axis=2), axis=1)[:, :8]
@@ -234,9 +292,9 @@ def test_embed_points():
     Xi = X[idx]  # (60, 8, 3)
     moved = np.einsum("mk,mkd->md", w, Xi @ A.T + t + (P[:, None] - Xi) @ A.T)
     assert np.allclose(moved, P @ A.T + t, atol=1e-12)
-    idx3, w3 = S.embed_points(P, X[:3], k=8)  # fewer particles than k
+    idx3, w3 = E.embed_points(P, X[:3], k=8)  # fewer particles than k
     assert idx3.shape == (60, 3) and np.allclose(w3.sum(axis=1), 1.0)
-    idx0, w0 = S.embed_points(X[:5], X, k=4)  # a point on a particle: finite weights, biggest there
+    idx0, w0 = E.embed_points(X[:5], X, k=4)  # a point on a particle: finite weights, biggest there
     assert np.all(np.isfinite(w0)) and np.array_equal(idx0[:, 0], np.arange(5))
     assert np.all(w0[:, 0] == w0.max(axis=1))
 
@@ -244,13 +302,13 @@ def test_embed_points():
 def test_first_depth_half_fills_the_body():
     """first_depth=0.5: layers at (k + 1/2) h, a box whose half thickness is layers * h is filled exactly."""
     a, b, c, h, L = 1.1, 0.1, 0.1, 0.0125, 4
-    m = S.primitive_surface("box", center=CENTER, R=ROT, edge=h, size=(a, b, c))
+    m = PS.primitive_surface("box", center=CENTER, R=ROT, edge=h, size=(a, b, c))
     s = S.shell_particles(m, h, L, np.random.default_rng(4), first_depth=0.5)
     depth = np.min(np.array([a, b, c]) / 2 - np.abs((s.points - CENTER) @ ROT), axis=1)
     for k in range(L):
         assert np.allclose(depth[s.layer == k], (k + 0.5) * h, atol=1e-12)
     assert math.isclose(s.volumes.sum(), a * b * c, rel_tol=0.005)  # midpoint rule over the depth
-    with pytest.raises(InputError, match=r"at most 4 there"):
-        S.shell_particles(m, h, 5, np.random.default_rng(4), first_depth=0.5)
+    five = S.shell_particles(m, h, 5, np.random.default_rng(4), first_depth=0.5)  # one more than fits: cut
+    assert five.layer.max() == 3 and math.isclose(five.volumes.sum(), a * b * c, rel_tol=0.01)
     with pytest.raises(InputError, match="first layer must be >= 0"):
         S.shell_particles(m, h, 2, np.random.default_rng(4), first_depth=-1.0)

@@ -24,6 +24,10 @@ def validate(
 
     console = Console(highlight=False, soft_wrap=True)
     prep = prepare(scene, set_, variant)
+    if prep.scene.output.usd:
+        from pdmpm_cli.io.usd import require
+
+        require()
     plan = prep.plan
     for w in plan.warnings():
         console.print(f"[yellow]warning:[/] {w}")

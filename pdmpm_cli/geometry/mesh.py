@@ -1,4 +1,4 @@
-"""Triangle surface meshes (closed; open ones on request): loading, validation/repair, volume and inside test.
+"""Triangle surface meshes (closed; open ones on request): loading, validation/repair, volume.
 
 Loading (:func:`load_surface_mesh`)
     Any format meshio reads (OBJ, STL, PLY, OFF, VTK/VTU, ...). Quads and polygons are
@@ -27,31 +27,21 @@ Repair (no error, recorded in ``SurfaceMesh.repairs``)
     is flipped, since the intent is unambiguous. Inner shells oriented opposite to the outer
     one are kept as they are: they describe cavities.
 
-Inside test (:func:`inside_mesh`, :func:`winding_number`)
-    The generalized winding number w(q) = sum of the triangles' signed solid angles / 4 pi
-    (Van Oosterom-Strackee formula); w > 0.5 means inside. The Numba kernel evaluates it
-    exactly (no far-field approximation) but hierarchically (Jacobson et al. 2013, section
-    3.3): triangles are grouped in a bounding-volume hierarchy and, for a query point
-    outside the box of a group, the group's contribution equals that of a fan of triangles
-    spanning the group's boundary loop (patch + reversed fan is a closed surface inside the
-    box, whose winding number vanishes outside it). Boundary loops have O(sqrt(m)) edges for
-    m triangles, so a query costs O(sqrt(nt)) solid angles instead of nt (1e5 points against
-    1e4 triangles: ~0.6 s on 2 cores instead of ~20 s). The half solid angles are summed as
-    a product of complex numbers with a branch-cut counter, one atan2 per point. Points near
-    (but not on) the surface get their exact winding number (agrees with the brute-force sum,
-    kept as ``_winding_number_bruteforce``, to ~1e-13); exactly on the surface w = 0.5.
+The inside test and ray queries over these meshes live in :mod:`pdmpm_cli.geometry.bvh`.
 """
 
 from __future__ import annotations
 
-import math
+import contextlib
+import io
+import logging
 import os
+import re
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from numba import njit, prange
 
 from pdmpm_cli.errors import InputError
 
@@ -62,8 +52,6 @@ __all__ = [
     "is_closed",
     "mesh_volume",
     "mesh_bounds",
-    "winding_number",
-    "inside_mesh",
 ]
 
 #: relative (to the bbox diagonal) distance below which vertices are merged
@@ -73,8 +61,6 @@ DEGENERATE_AREA = 1e-12
 #: degenerate faces tolerated: max(DEGENERATE_MAX_COUNT, DEGENERATE_MAX_FRACTION * n_faces)
 DEGENERATE_MAX_COUNT = 5
 DEGENERATE_MAX_FRACTION = 1e-3
-#: triangles per BVH leaf of the winding-number hierarchy
-BVH_LEAF_SIZE = 8
 
 _FIX_HOLES = "close the holes, e.g. with Blender's 'Fill Holes' (Edit mode: Select > All by Trait > Non Manifold, then Face > Fill) or meshfix"
 _FIX_NONMANIFOLD = (
@@ -85,6 +71,9 @@ _FIX_NONMANIFOLD = (
 _FIX_ORIENT = (
     "make the face orientation consistent (Blender: Edit mode, select all, Mesh > Normals > "
     "Recalculate Outside; or meshfix)"
+)
+_FIX_UNMERGED = (
+    "merge the duplicates (Blender: Edit mode, select all, Mesh > Clean Up > Merge by Distance; or meshfix)"
 )
 _FIX_DEGENERATE = (
     "remove the zero-area faces (Blender: Mesh > Clean Up > Merge by Distance and Degenerate "
@@ -151,13 +140,37 @@ def mesh_bounds(mesh: SurfaceMesh) -> tuple[np.ndarray, np.ndarray]:
 # ----------------------------------------------------------------------------------------
 # loading
 # ----------------------------------------------------------------------------------------
-def _supported_extensions() -> list[str]:
+#: readers by file extension: trimesh for what it reads well, meshio's format readers for PLY and the rest
+TRIMESH_FORMATS = {".obj": "OBJ", ".stl": "STL", ".off": "OFF", ".glb": "glTF binary", ".gltf": "glTF"}
+#: length of one file unit in metres (``units``)
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+_EXPORT_HINT = ("export it again from the modelling tool, e.g. Blender: File > Export > Wavefront (.obj) or "
+                "Stl (.stl)")
+
+
+def _meshio_extensions() -> dict[str, list[str]]:
     import meshio
 
-    ext = getattr(meshio, "extension_to_filetypes", None)
-    if ext is None:  # pragma: no cover - older meshio
-        ext = getattr(getattr(meshio, "_helpers", None), "extension_to_filetypes", {})
-    return sorted(ext.keys())
+    return meshio.extension_to_filetypes
+
+
+def supported_extensions() -> list[str]:
+    """Every mesh file extension the loader reads."""
+    return sorted(set(TRIMESH_FORMATS) | set(_meshio_extensions()))
+
+
+def _format_of(resolved: Path) -> tuple[str, str]:
+    """(reader, format name) for a file, by its extension; InputError naming the readable ones."""
+    name = resolved.name.lower()
+    if resolved.suffix.lower() in TRIMESH_FORMATS:
+        return "trimesh", TRIMESH_FORMATS[resolved.suffix.lower()]
+    for ext, types in sorted(_meshio_extensions().items(), key=lambda e: -len(e[0])):
+        if name.endswith(ext):
+            return "meshio", types[0]  # meshio's name of the format (e.g. "ply")
+    raise InputError(
+        f"mesh file {resolved}: unknown file extension '{resolved.suffix}'. Fix: export it as OBJ, STL, PLY, OFF or "
+        f"glTF (.glb); the extensions read are {', '.join(supported_extensions())}"
+    )
 
 
 def _fmt_point(x) -> str:
@@ -177,26 +190,24 @@ _CORNERS = {"triangle": 3, "triangle6": 3, "triangle7": 3, "quad": 4, "quad8": 4
 _VOLUME_CELLS = ("tetra", "hexahedron", "wedge", "pyramid")
 
 
-def _read_faces(resolved: Path) -> tuple[np.ndarray, np.ndarray]:
+def _read_trimesh(resolved: Path) -> tuple[np.ndarray, np.ndarray, str]:
+    """OBJ (v/vt/vn corners, groups, materials, n-gons), STL, OFF, glTF through trimesh, as one mesh: polygons
+    come fan-triangulated, scenes (OBJ objects, glTF nodes) concatenated with their transforms, vertex order
+    kept as far as the format allows (OBJ: the file's order, so shell pins by vertex index match it)."""
+    import trimesh
+
+    options = {"maintain_order": True, "skip_materials": True} if resolved.suffix.lower() == ".obj" else {}
+    m = trimesh.load(str(resolved), file_type=resolved.suffix.lower()[1:], force="mesh", process=False, **options)
+    return np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64).reshape(-1, 3), ""
+
+
+def _read_meshio(resolved: Path, file_format: str) -> tuple[np.ndarray, np.ndarray, str]:
+    """PLY (any mix of polygon sizes, which trimesh's binary PLY reader cannot take), VTK, VTU, ... through
+    meshio's reader for the format (which prints and ends the process on a file it cannot read: the caller
+    catches that). Returns (points, triangles, a hint when there are no faces)."""
     import meshio
 
-    name = resolved.name.lower()
-    exts = _supported_extensions()
-    if not any(name.endswith(e) for e in exts):
-        raise InputError(
-            f"cannot read mesh file {resolved}: unknown file extension '{resolved.suffix}'. "
-            f"Supported extensions: {', '.join(exts)}"
-        )
-    try:
-        with warnings.catch_warnings():  # e.g. numpy overflow warnings while sniffing STL headers
-            warnings.simplefilter("ignore", RuntimeWarning)
-            m = meshio.read(str(resolved))
-    except Exception as exc:  # meshio raises many different types for broken files
-        raise InputError(
-            f"cannot read mesh file {resolved}: {type(exc).__name__}: {exc}. "
-            f"Supported extensions: {', '.join(exts)} (is the file complete and in the "
-            f"format its extension says?)"
-        ) from None
+    m = meshio.read(str(resolved), file_format=file_format)
     pts = np.asarray(m.points, dtype=np.float64)
     faces: list[np.ndarray] = []
     volume_types = []
@@ -216,30 +227,99 @@ def _read_faces(resolved: Path) -> tuple[np.ndarray, np.ndarray]:
             faces.append(_fan(data))
         elif ctype.startswith(_VOLUME_CELLS):
             volume_types.append(ctype)
-    if not faces:
-        if volume_types:
-            hint = (
-                f"it contains only volume cells ({', '.join(sorted(set(volume_types)))}); "
-                "export its boundary surface as triangles (e.g. STL or OBJ)"
-            )
-        elif pts.shape[0] == 0:
-            hint = "it contains no vertices at all (empty file or not really this format?)"
-        else:
-            hint = "export the surface as triangles or polygons (e.g. STL or OBJ)"
-        raise InputError(f"mesh file {resolved} has no triangle or polygon faces: {hint}")
-    tris = np.concatenate(faces, axis=0)
+    hint = ""
+    if volume_types:
+        hint = (f"it holds only volume cells ({', '.join(sorted(set(volume_types)))}). Fix: export its boundary "
+                "surface as triangles (e.g. STL or OBJ)")
+    tris = np.concatenate(faces, axis=0) if faces else np.zeros((0, 3), np.int64)
+    return pts, tris, hint
+
+
+def read_mesh_file(resolved: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(points (n, 3), triangles (m, 3)) as the file stores them; InputError naming the file and the fix for a
+    missing, empty, unreadable or damaged file, one without faces, NaN coordinates or faces naming missing vertices.
+
+    Whatever a reader raises (or a `SystemExit`) becomes that InputError: no file makes pdmpm crash. The reader is
+    chosen by extension (:data:`TRIMESH_FORMATS`, else meshio): on the test corpus (``bench/mesh_readers.py``)
+    meshio refused Blender's OBJ with texture or normal indices and ended the process on an OFF file with quads;
+    trimesh read those and glTF, but not a binary PLY that mixes triangles and quads (as Blender writes it), which
+    meshio reads."""
+    if not resolved.exists():
+        raise InputError(f"mesh file not found: {resolved}. Fix: check the file name and folder (a relative path "
+                         "starts from the scene file's folder)")
+    if resolved.is_dir():
+        inside = sorted(p.name for p in resolved.iterdir() if p.suffix.lower() in supported_extensions())[:5]
+        holds = f" (it holds {', '.join(inside)})" if inside else ""
+        raise InputError(f"mesh path {resolved} is a folder, not a mesh file{holds}. Fix: give the path of the mesh "
+                         "file itself")
+    if not resolved.is_file():
+        raise InputError(f"mesh path {resolved} is not a regular file. Fix: give the path of a mesh file")
+    reader, file_format = _format_of(resolved)
+    fmt = file_format if reader == "trimesh" else file_format.upper()
+    a_fmt = ("an " if fmt[0] in "AEFHILMNORSX" else "a ") + fmt  # as the letter is spoken: an OBJ, an STL, a PLY
+    if resolved.stat().st_size == 0:
+        raise InputError(f"mesh file {resolved} is empty (0 bytes). Fix: {_EXPORT_HINT}")
+    said = io.StringIO()  # what a reader prints instead of raising (meshio)
+    try:
+        with (warnings.catch_warnings(), contextlib.redirect_stdout(said), contextlib.redirect_stderr(io.StringIO()),
+              _quiet_logger("trimesh")):
+            warnings.simplefilter("ignore")
+            pts, tris, hint = _read_trimesh(resolved) if reader == "trimesh" else _read_meshio(resolved, file_format)
+    except KeyboardInterrupt:
+        raise
+    except BaseException as exc:  # readers raise anything on a damaged file (meshio: SystemExit)
+        detail = _reader_detail(exc, said.getvalue())
+        raise InputError(f"mesh file {resolved} could not be read as {a_fmt} file ({detail}): it is damaged, "
+                         f"truncated or in another format. Fix: {_EXPORT_HINT}") from None
     if pts.ndim != 2 or pts.shape[1] not in (2, 3):
-        raise InputError(f"mesh file {resolved}: vertex array has shape {pts.shape}, expected (n, 3)")
+        raise InputError(f"mesh file {resolved}: vertex array has shape {pts.shape}, expected (n, 3). Fix: "
+                         f"{_EXPORT_HINT}")
+    if tris.shape[0] == 0:
+        raise InputError(f"mesh file {resolved} has no faces (it holds {pts.shape[0]} vertices): "
+                         + (hint or f"it is truncated, holds only points or lines, or is not {a_fmt} file. Fix: "
+                            f"{_EXPORT_HINT}, as a surface of triangles or polygons"))
     if pts.shape[1] == 2:
-        raise InputError(
-            f"mesh file {resolved} is two-dimensional (vertices have 2 coordinates); a closed "
-            "3-D surface is needed"
-        )
+        raise InputError(f"mesh file {resolved} is two-dimensional (vertices have 2 coordinates). Fix: export a "
+                         "closed 3-D surface")
     if tris.min() < 0 or tris.max() >= pts.shape[0]:
-        raise InputError(f"mesh file {resolved}: faces reference vertices that do not exist")
-    if not np.all(np.isfinite(pts[np.unique(tris)])):
-        raise InputError(f"mesh file {resolved}: vertex coordinates contain NaN or infinity")
+        bad = int(tris.max()) if tris.max() >= pts.shape[0] else int(tris.min())
+        raise InputError(f"mesh file {resolved}: a face refers to vertex {bad} (0-based) but the file has "
+                         f"{pts.shape[0]} vertices. Fix: {_EXPORT_HINT}")
+    used = np.unique(tris)
+    bad = used[~np.all(np.isfinite(pts[used]), axis=1)]
+    if bad.size:
+        raise InputError(f"mesh file {resolved}: {bad.size} vertices have NaN or infinite coordinates (e.g. vertex "
+                         f"{int(bad[0])}, 0-based). Fix: {_EXPORT_HINT}")
     return pts, tris
+
+
+def _reader_detail(exc: BaseException, printed: str) -> str:
+    """A reader's exception in a few words (an out-of-range face index in plain terms); for one that printed its
+    reason and ended the process, the first line it printed."""
+    if isinstance(exc, SystemExit):
+        return printed.strip().splitlines()[0] if printed.strip() else "the reader gave up"
+    if isinstance(exc, MemoryError):
+        return "it asks for more memory than there is: a count or an index in it is absurdly large"
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    m = re.search(r"index (-?\d+) is out of bounds for axis 0 with size (\d+)", text)
+    if m:
+        return f"a face refers to vertex {m.group(1)} (0-based) but the file has {m.group(2)} vertices"
+    text = text if len(text) <= 120 else text[:117] + "..."
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+@contextlib.contextmanager
+def _quiet_logger(name: str):
+    """Keep a library's log records (a missing material file, ...) off the user's terminal while it reads."""
+    log = logging.getLogger(name)
+    handler, propagate = logging.NullHandler(), log.propagate
+    log.addHandler(handler)
+    log.propagate = False
+    try:
+        yield
+    finally:
+        log.removeHandler(handler)
+        log.propagate = propagate
 
 
 def _compact(V: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -265,6 +345,27 @@ def _weld(V: np.ndarray, T: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndar
     return V[first], labels[T].astype(np.int64), nv - ncomp
 
 
+#: a boundary vertex this close to another vertex, relative to the median edge length, is an unmerged duplicate
+NEAR_DUPLICATE = 0.01
+
+
+def _unmerged(V, T, boundary_keys, nv) -> str:
+    """Advice when most boundary vertices have another vertex much closer than the edges are long: the surface
+    is closed but stored with duplicate vertices a little apart (beyond the weld tolerance); '' otherwise."""
+    from scipy.spatial import cKDTree
+
+    verts = np.unique(np.concatenate([boundary_keys // nv, boundary_keys % nv]))
+    edge = float(np.median(np.linalg.norm(V[T[:, 1]] - V[T[:, 0]], axis=1)))
+    d, _ = cKDTree(V).query(V[verts], k=2)
+    near = d[:, 1] < NEAR_DUPLICATE * edge
+    if near.sum() < 0.5 * verts.size:
+        return ""
+    gap = float(d[near, 1].max())
+    return (f"{int(near.sum())} of its {verts.size} boundary vertices lie within {gap:.2g} m of another vertex: it is "
+            f"probably closed, stored with each corner repeated a little apart. Fix: {_FIX_UNMERGED} (a distance of "
+            f"{2 * gap:.2g} m)")
+
+
 def _edge_examples(V, edges, k=2) -> str:
     return "; ".join(f"{_fmt_point(V[u])} - {_fmt_point(V[v])}" for u, v in edges[:k])
 
@@ -286,7 +387,7 @@ def validate_surface(
     V, T = _compact(V, T)
     diag = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
     if not diag > 0.0:
-        raise InputError(f"{where}: all vertices coincide; the mesh has no extent")
+        raise InputError(f"{where}: all vertices coincide; the mesh has no extent. Fix: export the mesh again")
 
     # --- weld duplicate vertices (STL stores every triangle separately)
     V, T, n_merged = _weld(V, T, WELD_TOLERANCE * diag)
@@ -311,7 +412,7 @@ def validate_surface(
         T = T[~collapsed]
         repairs.append(f"dropped {int(collapsed.sum())} collapsed (zero-area) faces")
         if T.shape[0] == 0:
-            raise InputError(f"{where}: every face is degenerate")
+            raise InputError(f"{where}: every face is degenerate (zero area). Fix: {_FIX_DEGENERATE}")
         V, T = _compact(V, T)
     if zero_area.any():
         repairs.append(f"kept {int(zero_area.sum())} zero-area faces (harmless)")
@@ -326,13 +427,17 @@ def validate_surface(
     uniq, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
     problems = []
     boundary = counts == 1
+    unmerged = _unmerged(V, T, uniq[boundary], nv) if boundary.any() else ""
     if boundary.any() and not allow_open:
         e = uniq[boundary]
         edges = np.stack([e // nv, e % nv], axis=1)
         problems.append(
             f"the surface is not closed: {int(boundary.sum())} boundary edges (edges used by "
-            f"only one triangle), e.g. {_edge_examples(V, edges)}. Fix: {_FIX_HOLES}"
+            f"only one triangle), e.g. {_edge_examples(V, edges)}"
+            + (f", but {unmerged}" if unmerged else f". Fix: {_FIX_HOLES}")
         )
+    elif unmerged:
+        repairs.append(f"the surface has {int(boundary.sum())} boundary edges, but {unmerged}")
     nonmanifold = counts > 2
     if nonmanifold.any():
         e = uniq[nonmanifold]
@@ -361,8 +466,8 @@ def validate_surface(
     vol = mesh_volume(SurfaceMesh(V, T))
     if not abs(vol) > 1e-12 * diag**3:
         raise InputError(
-            f"{where}: the closed surface encloses zero volume (flat or self-cancelling); "
-            "a solid body is needed"
+            f"{where}: the closed surface encloses zero volume (flat or self-cancelling). Fix: model a solid, a "
+            "surface around a volume; a flat sheet can be a shell body (mode: shell, layers: 1)"
         )
     if vol < 0.0:
         T = T[:, [0, 2, 1]].copy()
@@ -382,480 +487,47 @@ def is_closed(T: np.ndarray) -> bool:
     return bool(np.all(counts >= 2))
 
 
-def load_surface_mesh(
-    path, scale=1.0, translate=(0.0, 0.0, 0.0), R=None, *, allow_open: bool = False
-) -> SurfaceMesh:
-    """Read, place, weld, validate and (if inverted) flip a closed triangle surface.
-
-    ``x = R @ (scale * x_file) + translate``; ``scale`` is a positive number or 3 positive
-    numbers (per axis), ``R`` a 3x3 rotation matrix (default identity), ``translate`` (3,).
-    ``allow_open`` also accepts a surface with holes / boundary (a cloth): ``closed`` is then
-    False and its orientation is kept as in the file.
-    Raises :class:`InputError` naming the (resolved) path for any problem.
-    """
+def place(points: np.ndarray, *, units: str = "m", scale=1.0, R=None, translate=(0.0, 0.0, 0.0), fit=None,
+          where: str = "mesh") -> np.ndarray:
+    """A mesh file's coordinates in metres: ``x = R (units * scale * x_file) + translate`` (``scale`` one factor or
+    one per axis, the rotation about the file's origin). With ``fit = (size, axis, center)`` the rotated mesh is
+    instead scaled uniformly so that its bounding box is ``size`` metres long along ``axis`` ("x", "y", "z" or
+    "longest") and moved so that the box's centre is ``center``, as the built-in bunny's height and center."""
     from pdmpm_cli.geometry.shapes import _rotation, _vec3
 
-    given = str(path)
-    resolved = Path(os.path.expanduser(given)).resolve()
-    if not resolved.exists():
-        rel = "" if Path(os.path.expanduser(given)).is_absolute() else f" relative to {Path.cwd()}"
-        raise InputError(
-            f"mesh file not found: {resolved} (given as {given!r}{rel}). Check the file name "
-            "and location."
-        )
-    if not resolved.is_file():
-        raise InputError(f"mesh path {resolved} is not a file")
-    where = f"mesh file {resolved}"
-
+    if units not in UNITS:
+        raise InputError(f"{where}: units must be one of {', '.join(UNITS)}, got {units!r}")
     s = np.asarray(scale, dtype=np.float64)
     if s.shape not in ((), (3,)) or not np.all(np.isfinite(s)) or np.any(s <= 0.0):
         raise InputError(f"{where}: scale must be a positive number or 3 positive numbers, got {scale!r}")
-    t = _vec3(translate, "translate")
-    M = _rotation(R)
+    V = (points * (UNITS[units] * s)) @ _rotation(R).T
+    if fit is None:
+        return V + _vec3(translate, "translate")
+    size, axis, center = fit
+    lo, hi = V.min(axis=0), V.max(axis=0)
+    extent = hi - lo
+    a = int(np.argmax(extent)) if axis == "longest" else "xyz".index(axis)
+    if not extent[a] > 0.0:
+        raise InputError(f"{where}: the mesh has no extent along {'xyz'[a]}, so it cannot be fitted to a size "
+                         f"along it. Fix: fit along another axis (fit.axis)")
+    k = float(size) / extent[a]
+    return k * (V - 0.5 * (lo + hi)) + _vec3(center, "fit.center")
 
-    pts, tris = _read_faces(resolved)
+
+def load_surface_mesh(
+    path, scale=1.0, translate=(0.0, 0.0, 0.0), R=None, *, units: str = "m", fit=None, allow_open: bool = False
+) -> SurfaceMesh:
+    """Read, place, weld, validate and (if inverted) flip a closed triangle surface.
+
+    Placement as :func:`place` (``units``, ``scale``, rotation matrix ``R``, ``translate`` or ``fit``).
+    ``allow_open`` also accepts a surface with holes / boundary (a cloth): ``closed`` is then
+    False and its orientation is kept as in the file.
+    Raises :class:`InputError` naming the (resolved) path and the fix for any problem.
+    """
+    resolved = Path(os.path.expanduser(str(path))).resolve()
+    where = f"mesh file {resolved}"
+    pts, tris = read_mesh_file(resolved)
     pts, tris = _compact(pts, tris)
-    V = (pts * s) @ M.T + t
+    V = place(pts, units=units, scale=scale, R=R, translate=translate, fit=fit, where=where)
     V, T, repairs = validate_surface(V, tris, where, allow_open=allow_open)
     return SurfaceMesh(V, T, str(resolved), repairs, closed=is_closed(T))
-
-
-# ----------------------------------------------------------------------------------------
-# winding number: Numba kernels
-# ----------------------------------------------------------------------------------------
-@njit(cache=True)
-def _num_den(ax, ay, az, la, bx, by, bz, lb, cx, cy, cz, lc):
-    """Van Oosterom-Strackee: tan(omega / 2) = num / den for corner vectors a, b, c (lengths l)."""
-    num = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
-    den = (
-        la * lb * lc
-        + (ax * bx + ay * by + az * bz) * lc
-        + (bx * cx + by * cy + bz * cz) * la
-        + (cx * ax + cy * ay + cz * az) * lb
-    )
-    return num, den
-
-
-@njit(cache=True)
-def _half_solid_angle(qx, qy, qz, V, i0, i1, i2):
-    """Half the signed solid angle of triangle (i0, i1, i2) seen from q (reference, with atan2)."""
-    num, den = _triangle_num_den(qx, qy, qz, V, i0, i1, i2)
-    return math.atan2(num, den)
-
-
-@njit(cache=True, inline="always")
-def _triangle_num_den(qx, qy, qz, V, i0, i1, i2):
-    """Numerator and denominator of tan(Omega/2) for triangle (i0, i1, i2) seen from q."""
-    ax = V[i0, 0] - qx
-    ay = V[i0, 1] - qy
-    az = V[i0, 2] - qz
-    bx = V[i1, 0] - qx
-    by = V[i1, 1] - qy
-    bz = V[i1, 2] - qz
-    cx = V[i2, 0] - qx
-    cy = V[i2, 1] - qy
-    cz = V[i2, 2] - qz
-    la = math.sqrt(ax * ax + ay * ay + az * az)
-    lb = math.sqrt(bx * bx + by * by + bz * bz)
-    lc = math.sqrt(cx * cx + cy * cy + cz * cz)
-    return _num_den(ax, ay, az, la, bx, by, bz, lb, cx, cy, cz, lc)
-
-
-@njit(cache=True)
-def _accumulate(zr, zi, wraps, num, den):
-    """Add the angle arg(den + i num) to the running angle  arg(z) + 2 pi wraps.
-
-    Angles are summed by multiplying unit-ish complex numbers (no atan2 per triangle);
-    ``wraps`` counts the crossings of the branch cut so that the total is recovered
-    exactly at the end by :func:`_total_angle`. Convention: arg is in (-pi, pi], points of
-    the negative real axis (imaginary part +-0) have arg +pi.
-    """
-    s = max(abs(num), abs(den))
-    if s == 0.0:  # atan2(0, 0) = 0: the point is a corner of the triangle
-        return zr, zi, wraps
-    qr = den / s
-    qi = num / s
-    nr = zr * qr - zi * qi
-    ni = zr * qi + zi * qr
-    if zi >= 0.0 and qi >= 0.0:  # both angles in [0, pi]: the sum is in [0, 2 pi]
-        if ni < 0.0 or (ni == 0.0 and nr > 0.0 and zr < 0.0):
-            wraps += 1
-    elif zi < 0.0 and qi < 0.0:  # both in (-pi, 0): the sum is in (-2 pi, 0)
-        if ni >= 0.0:
-            wraps -= 1
-    if abs(nr) > 1e200 or abs(ni) > 1e200:  # |q| is in [1, sqrt 2]: rescale now and then
-        nr *= 1e-200
-        ni *= 1e-200
-    return nr, ni, wraps
-
-
-@njit(cache=True)
-def _total_angle(zr, zi, wraps):
-    ang = math.pi if (zi == 0.0 and zr < 0.0) else math.atan2(zi, zr)
-    return ang + 2.0 * math.pi * wraps
-
-
-@njit(parallel=True, cache=True)
-def _winding_number_bruteforce(points, V, T):
-    """Reference: w(q) = sum over all triangles of solid angle / 4 pi (O(n nt), atan2 each)."""
-    n = points.shape[0]
-    out = np.empty(n)
-    for i in prange(n):
-        qx, qy, qz = points[i, 0], points[i, 1], points[i, 2]
-        s = 0.0
-        for t in range(T.shape[0]):
-            s += _half_solid_angle(qx, qy, qz, V, T[t, 0], T[t, 1], T[t, 2])
-        out[i] = s / (2.0 * math.pi)
-    return out
-
-
-@njit(cache=True)
-def _argsort(keys):
-    """Stable argsort (bottom-up merge sort), hand-written because it compiles much faster."""
-    n = keys.shape[0]
-    idx = np.arange(n)
-    tmp = np.empty(n, np.int64)
-    width = 1
-    while width < n:
-        lo = 0
-        while lo < n:
-            mid = min(lo + width, n)
-            hi = min(lo + 2 * width, n)
-            i = lo
-            j = mid
-            k = lo
-            while i < mid and j < hi:
-                if keys[idx[j]] < keys[idx[i]]:
-                    tmp[k] = idx[j]
-                    j += 1
-                else:
-                    tmp[k] = idx[i]
-                    i += 1
-                k += 1
-            while i < mid:
-                tmp[k] = idx[i]
-                i += 1
-                k += 1
-            while j < hi:
-                tmp[k] = idx[j]
-                j += 1
-                k += 1
-            lo = hi
-        idx, tmp = tmp, idx
-        width *= 2
-    return idx
-
-
-@njit(cache=True)
-def _reduce_chain(E, nv):
-    """Net 1-chain of directed edges E (m, 2), ordered into walks.
-
-    (u, v) cancels (v, u), multiplicities are kept. The result is ordered so that consecutive
-    edges mostly share a vertex (end of one = start of the next), which the kernel exploits.
-    """
-    m = E.shape[0]
-    keys = np.empty(m, np.int64)
-    sgn = np.empty(m, np.int64)
-    for k in range(m):
-        u, v = E[k, 0], E[k, 1]
-        if u < v:
-            keys[k] = u * nv + v
-            sgn[k] = 1
-        else:
-            keys[k] = v * nv + u
-            sgn[k] = -1
-    order = _argsort(keys)
-    net_edges = np.empty((m, 2), np.int64)
-    n = 0
-    k = 0
-    while k < m:
-        key = keys[order[k]]
-        net = 0
-        j = k
-        while j < m and keys[order[j]] == key:
-            net += sgn[order[j]]
-            j += 1
-        a = key // nv
-        b = key - a * nv
-        for _ in range(abs(net)):
-            if net > 0:
-                net_edges[n, 0] = a
-                net_edges[n, 1] = b
-            else:
-                net_edges[n, 0] = b
-                net_edges[n, 1] = a
-            n += 1
-        k = j
-    # order into walks: follow end vertex -> an unused edge starting there
-    starts = np.empty(n, np.int64)
-    for k in range(n):
-        starts[k] = net_edges[k, 0]
-    by_start = _argsort(starts)
-    sorted_starts = starts[by_start]
-    used = np.zeros(n, np.bool_)
-    out = np.empty((n, 2), np.int64)
-    r = 0
-    for s0 in range(n):
-        cur = by_start[s0]
-        if used[cur]:
-            continue
-        while True:
-            used[cur] = True
-            out[r, 0] = net_edges[cur, 0]
-            out[r, 1] = net_edges[cur, 1]
-            r += 1
-            v = net_edges[cur, 1]
-            j0 = 0  # first index with sorted_starts[j] >= v (binary search)
-            j1 = n
-            while j0 < j1:
-                jm = (j0 + j1) // 2
-                if sorted_starts[jm] < v:
-                    j0 = jm + 1
-                else:
-                    j1 = jm
-            j = j0
-            while j < n and sorted_starts[j] == v and used[by_start[j]]:
-                j += 1
-            if j < n and sorted_starts[j] == v:
-                cur = by_start[j]
-            else:
-                break
-    return out
-
-
-@njit(cache=True)
-def _build_hierarchy(V, T, leaf_size):
-    """Median-split BVH over triangles + boundary chain (directed edges) of every node.
-
-    Returns (T_sorted, node_lo, node_hi, start, end, left, bptr, bedges, n_nodes) (node
-    arrays over-allocated: only the first n_nodes entries are meaningful): node k covers
-    T_sorted[start[k]:end[k]]; left[k] = -1 for leaves, else its children are left[k] and
-    left[k] + 1; its boundary edges are bedges[bptr[k]:bptr[k + 1]].
-    """
-    nt = T.shape[0]
-    nv = V.shape[0]
-    tlo = np.empty((nt, 3))
-    thi = np.empty((nt, 3))
-    cen = np.empty((nt, 3))
-    for t in range(nt):
-        for d in range(3):
-            a = V[T[t, 0], d]
-            b = V[T[t, 1], d]
-            c = V[T[t, 2], d]
-            tlo[t, d] = min(a, min(b, c))
-            thi[t, d] = max(a, max(b, c))
-            cen[t, d] = (a + b + c) / 3.0
-    max_nodes = 2 * nt + 1
-    node_lo = np.empty((max_nodes, 3))
-    node_hi = np.empty((max_nodes, 3))
-    start = np.empty(max_nodes, np.int64)
-    end = np.empty(max_nodes, np.int64)
-    left = np.full(max_nodes, -1, np.int64)
-    order = np.arange(nt)
-    stack = np.empty(max_nodes, np.int64)
-    clo = np.empty(3)
-    chi = np.empty(3)
-    start[0] = 0
-    end[0] = nt
-    n_nodes = 1
-    sp = 1
-    stack[0] = 0
-    while sp > 0:
-        sp -= 1
-        k = stack[sp]
-        s = start[k]
-        e = end[k]
-        for d in range(3):
-            node_lo[k, d] = np.inf
-            node_hi[k, d] = -np.inf
-            clo[d] = np.inf
-            chi[d] = -np.inf
-        for j in range(s, e):
-            t = order[j]
-            for d in range(3):
-                node_lo[k, d] = min(node_lo[k, d], tlo[t, d])
-                node_hi[k, d] = max(node_hi[k, d], thi[t, d])
-                clo[d] = min(clo[d], cen[t, d])
-                chi[d] = max(chi[d], cen[t, d])
-        if e - s <= leaf_size:
-            continue
-        axis = 0
-        for d in range(1, 3):
-            if chi[d] - clo[d] > chi[axis] - clo[axis]:
-                axis = d
-        seg = np.empty(e - s, np.int64)
-        keys = np.empty(e - s)
-        for j in range(e - s):
-            seg[j] = order[s + j]
-            keys[j] = cen[seg[j], axis]
-        perm = _argsort(keys)
-        for j in range(e - s):
-            order[s + j] = seg[perm[j]]
-        mid = (s + e) // 2
-        left[k] = n_nodes
-        start[n_nodes] = s
-        end[n_nodes] = mid
-        start[n_nodes + 1] = mid
-        end[n_nodes + 1] = e
-        stack[sp] = n_nodes
-        stack[sp + 1] = n_nodes + 1
-        sp += 2
-        n_nodes += 2
-
-    Ts = np.empty((nt, 3), np.int64)
-    for j in range(nt):
-        for d in range(3):
-            Ts[j, d] = T[order[j], d]
-
-    # boundary chains bottom-up (children have larger indices than their parent), kept in a
-    # growable flat buffer: node k's chain is buf[cstart[k]:cstart[k] + clen[k]]
-    buf = np.empty((6 * nt + 16, 2), np.int64)
-    used = 0
-    cstart = np.zeros(n_nodes, np.int64)
-    clen = np.zeros(n_nodes, np.int64)
-    for k in range(n_nodes - 1, -1, -1):
-        if left[k] < 0:
-            m = end[k] - start[k]
-            E = np.empty((3 * m, 2), np.int64)
-            for j in range(m):
-                t = start[k] + j
-                for q in range(3):
-                    E[3 * j + q, 0] = Ts[t, q]
-                    E[3 * j + q, 1] = Ts[t, (q + 1) % 3]
-        else:
-            a = left[k]
-            b = a + 1
-            na = clen[a]
-            E = np.empty((na + clen[b], 2), np.int64)
-            for j in range(na):
-                E[j, 0] = buf[cstart[a] + j, 0]
-                E[j, 1] = buf[cstart[a] + j, 1]
-            for j in range(clen[b]):
-                E[na + j, 0] = buf[cstart[b] + j, 0]
-                E[na + j, 1] = buf[cstart[b] + j, 1]
-        C = _reduce_chain(E, nv)
-        if used + C.shape[0] > buf.shape[0]:
-            bigger = np.empty((2 * buf.shape[0] + C.shape[0], 2), np.int64)
-            for j in range(used):
-                bigger[j, 0] = buf[j, 0]
-                bigger[j, 1] = buf[j, 1]
-            buf = bigger
-        for j in range(C.shape[0]):
-            buf[used + j, 0] = C[j, 0]
-            buf[used + j, 1] = C[j, 1]
-        cstart[k] = used
-        clen[k] = C.shape[0]
-        used += C.shape[0]
-    bptr = np.zeros(n_nodes + 1, np.int64)
-    for k in range(n_nodes):
-        bptr[k + 1] = bptr[k] + clen[k]
-    bedges = np.empty((bptr[n_nodes], 2), np.int64)
-    for k in range(n_nodes):
-        for j in range(clen[k]):
-            bedges[bptr[k] + j, 0] = buf[cstart[k] + j, 0]
-            bedges[bptr[k] + j, 1] = buf[cstart[k] + j, 1]
-    return Ts, node_lo, node_hi, start, end, left, bptr, bedges, n_nodes
-
-
-@njit(parallel=True, cache=True)
-def _winding_number_kernel(points, V, Ts, node_lo, node_hi, start, end, left, bptr, bedges, pad):
-    """Exact generalized winding number of every point, hierarchically (see module doc).
-
-    For each point (prange), walk the BVH: a node whose (padded) box contains the point is
-    opened (its children, or at a leaf its triangles); otherwise the node's triangles
-    contribute the same as the fan (o, u, v) over its boundary edges u -> v (o = the first
-    boundary vertex); whichever of the two is shorter is summed. The half solid angles are
-    summed with :func:`_accumulate` (complex products, one atan2 per point).
-    """
-    n = points.shape[0]
-    out = np.empty(n)
-    for i in prange(n):
-        qx, qy, qz = points[i, 0], points[i, 1], points[i, 2]
-        stack = np.empty(128, np.int64)
-        stack[0] = 0
-        sp = 1
-        zr = 1.0
-        zi = 0.0
-        wraps = 0
-        while sp > 0:
-            sp -= 1
-            k = stack[sp]
-            contains = (
-                qx >= node_lo[k, 0] - pad
-                and qx <= node_hi[k, 0] + pad
-                and qy >= node_lo[k, 1] - pad
-                and qy <= node_hi[k, 1] + pad
-                and qz >= node_lo[k, 2] - pad
-                and qz <= node_hi[k, 2] + pad
-            )
-            if contains and left[k] >= 0:
-                stack[sp] = left[k]
-                stack[sp + 1] = left[k] + 1
-                sp += 2
-                continue
-            nb = bptr[k + 1] - bptr[k]
-            if contains or end[k] - start[k] <= nb:
-                for t in range(start[k], end[k]):
-                    num, den = _triangle_num_den(qx, qy, qz, V, Ts[t, 0], Ts[t, 1], Ts[t, 2])
-                    zr, zi, wraps = _accumulate(zr, zi, wraps, num, den)
-            elif nb > 0:
-                b0 = bptr[k]
-                o = bedges[b0, 0]
-                ax = V[o, 0] - qx
-                ay = V[o, 1] - qy
-                az = V[o, 2] - qz
-                la = math.sqrt(ax * ax + ay * ay + az * az)
-                prev = -1
-                bx = by = bz = lb = 0.0
-                for b in range(b0, bptr[k + 1]):
-                    u = bedges[b, 0]
-                    w = bedges[b, 1]
-                    if u != prev:  # walks: usually the previous edge ended at u
-                        bx = V[u, 0] - qx
-                        by = V[u, 1] - qy
-                        bz = V[u, 2] - qz
-                        lb = math.sqrt(bx * bx + by * by + bz * bz)
-                    cx = V[w, 0] - qx
-                    cy = V[w, 1] - qy
-                    cz = V[w, 2] - qz
-                    lc = math.sqrt(cx * cx + cy * cy + cz * cz)
-                    if u != o and w != o:
-                        num, den = _num_den(ax, ay, az, la, bx, by, bz, lb, cx, cy, cz, lc)
-                        zr, zi, wraps = _accumulate(zr, zi, wraps, num, den)
-                    prev = w
-                    bx = cx
-                    by = cy
-                    bz = cz
-                    lb = lc
-        out[i] = _total_angle(zr, zi, wraps) / (2.0 * math.pi)
-    return out
-
-
-def _hierarchy(mesh: SurfaceMesh):
-    fp = (id(mesh.vertices), id(mesh.triangles), mesh.vertices.shape, mesh.triangles.shape)
-    if mesh._bvh is None or mesh._bvh[0] != fp:
-        Ts, lo, hi, start, end, left, bptr, bedges, nn = _build_hierarchy(
-            mesh.vertices, mesh.triangles, BVH_LEAF_SIZE
-        )
-        h = (Ts, lo[:nn].copy(), hi[:nn].copy(), start[:nn].copy(), end[:nn].copy(), left[:nn].copy(), bptr, bedges)
-        diag = float(np.linalg.norm(mesh.vertices.max(axis=0) - mesh.vertices.min(axis=0)))
-        mesh._bvh = (fp, h, 1e-7 * diag)
-    return mesh._bvh[1], mesh._bvh[2]
-
-
-def winding_number(mesh: SurfaceMesh, points) -> np.ndarray:
-    """Generalized winding number (n,) of each point: 1 inside, 0 outside, 0.5 on the surface."""
-    P = np.ascontiguousarray(points, dtype=np.float64)
-    if P.ndim == 1 and P.shape[0] == 3:
-        P = P[None, :]
-    if P.ndim != 2 or P.shape[1] != 3:
-        raise ValueError(f"points must have shape (n, 3), got {P.shape}")
-    if P.shape[0] == 0 or mesh.triangles.shape[0] == 0:
-        return np.zeros(P.shape[0])
-    (Ts, lo, hi, start, end, left, bptr, bedges), pad = _hierarchy(mesh)
-    return _winding_number_kernel(P, mesh.vertices, Ts, lo, hi, start, end, left, bptr, bedges, pad)
-
-
-def inside_mesh(mesh: SurfaceMesh, points) -> np.ndarray:
-    """Bool mask (n,): generalized winding number > 0.5."""
-    return winding_number(mesh, points) > 0.5

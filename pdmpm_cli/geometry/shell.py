@@ -1,12 +1,5 @@
 """Shell geometry (paper section 7): material points on a surface and in layers under it.
 
-Primitive surfaces (:func:`primitive_surface`)
-    Built-in shapes triangulated with edges about ``edge`` long, outward-oriented and
-    validated like a mesh file: the sheet is a regular grid (open), the box a regular grid on
-    each face, the sphere, cylinder and capsule are surfaces of revolution: rings of about
-    ``2 pi rho / edge`` vertices spaced ``edge`` along the profile, adjacent rings zipped
-    together by angle (a single vertex at the poles / cap centres).
-
 Sampling (:func:`shell_particles`)
     Layer 0 is a blue-noise set on the surface: uniform area-weighted candidates (about
     ``CANDIDATES_PER_POINT`` per wanted point) are accepted in random order when no accepted
@@ -32,50 +25,47 @@ Sampling (:func:`shell_particles`)
     the midpoint rule), and a flat sheet gets exactly area * layers * h. An open surface gets
     its layers on the side opposite its normals.
 
-    Checks (InputError): layers >= 1; at least 4 points; at most ``MAX_POINTS``; with
-    layers > 1 the body must be thick enough: along the inward normal of each sample the
-    surface must be at least ``2 (layers - 1) h + MIN_INNER_GAP h`` away (the deepest layers
-    from opposite sides stay h/2 apart), and the path of each sample's layers must not leave
-    the body (which, on a closed surface, is the inside test of every inner point).
+    Checks (InputError): layers >= 1; at least 4 points; at most ``MAX_POINTS``.
+
+    Where the body is thinner than its layers (measured per sample by two ray casts: along
+    the inward normal the layers from opposite sides must stay ``MIN_INNER_GAP h`` apart,
+    and the sample's offset path must not leave the body or pass where its triangle's offset
+    turns over), the sample keeps only the layers that fit. Its deepest point then stands
+    for the material down to the middle of the body and sits at the centre of that slab.
+    Volumes are then taken per triangle: a point stands for its slab under its sample's
+    share of the surface (the area nearer to it than to other samples) times the integral of
+    the triangle's offset area ratio (a quadratic in the depth) over the slab, so the total
+    stays the volume under the surface (a plate thinner than its layers gets its own volume,
+    not the layers'). Bodies thick enough everywhere keep the per-layer volumes above.
+    ``ShellSample.notes`` says where layers were cut.
 
     Option ``first_depth`` (default 0, as above) moves every layer deeper by first_depth h;
     with 0.5 layer k sits at (k + 1/2) h and the layers' slabs fill [0, layers h] inside the
     surface (A_k is then taken at the slab centre, so the total approximates the shell's own
     volume instead of one reaching h/2 outside).
 
-Embedding (:func:`embed_points`)
-    Mesh vertices are tied to their k nearest particles with Wendland C2 weights, so that the
-    animated surface can follow the particles' motion and deformation.
+The surfaces of built-in shapes come from :mod:`pdmpm_cli.geometry.primitive_surfaces`; the vertices of
+the surface are tied to the particles by :mod:`pdmpm_cli.geometry.embed`.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 from scipy.spatial import cKDTree
 
 from pdmpm_cli.errors import InputError
-from pdmpm_cli.geometry.mesh import (
-    SurfaceMesh,
-    _fmt_point,
-    _hierarchy,
-    _weld,
-    inside_mesh,
-    is_closed,
-    validate_surface,
-)
-from pdmpm_cli.geometry.shapes import _positive, _rotation, _size3, _vec3
+from pdmpm_cli.geometry.bvh import inside_mesh, ray_hits
+from pdmpm_cli.geometry.mesh import SurfaceMesh, _fmt_point
+from pdmpm_cli.geometry.shapes import _positive
 
-__all__ = ["PRIMITIVES", "ShellSample", "primitive_surface", "shell_particles", "thin_crowded", "embed_points"]
+__all__ = ["ShellSample", "shell_particles", "thin_crowded"]
 
-PRIMITIVES = ("sheet", "box", "sphere", "cylinder", "capsule")
 #: refuse shells with more material points than this
 MAX_POINTS = 5_000_000
-#: refuse primitive surfaces with more triangles than this
-MAX_TRIANGLES = 20_000_000
 #: minimum distance between layer-0 points, in units of h
 MIN_SEPARATION = 0.6
 #: uniform candidates drawn per wanted layer-0 point (more: closer to a maximal packing)
@@ -92,174 +82,6 @@ OFFSET_CG_ITERATIONS = 1000
 MIN_INNER_GAP = 0.5
 _CHUNK = 1 << 20
 
-
-# ----------------------------------------------------------------------------------------
-# primitive surfaces
-# ----------------------------------------------------------------------------------------
-def _grid_face(o, U, W, nu: int, nw: int) -> tuple[np.ndarray, np.ndarray]:
-    """Regular grid o + i/nu U + j/nw W, triangulated counter-clockwise about U x W."""
-    i, j = np.meshgrid(np.arange(nu + 1), np.arange(nw + 1), indexing="ij")
-    V = o + (i.reshape(-1, 1) / nu) * U + (j.reshape(-1, 1) / nw) * W
-    idx = lambda a, b: a * (nw + 1) + b  # noqa: E731
-    a, b = np.meshgrid(np.arange(nu), np.arange(nw), indexing="ij")
-    a, b = a.ravel(), b.ravel()
-    p00, p10, p11, p01 = idx(a, b), idx(a + 1, b), idx(a + 1, b + 1), idx(a, b + 1)
-    T = np.concatenate([np.stack([p00, p10, p11], 1), np.stack([p00, p11, p01], 1)])
-    return V, T.astype(np.int64)
-
-
-def _nseg(length: float, edge: float) -> int:
-    return max(1, int(round(length / edge)))
-
-
-def _box_local(size, edge) -> tuple[np.ndarray, np.ndarray]:
-    """Box centred at the origin: a grid on each face, shared edge vertices welded."""
-    a, b, c = size
-    na, nb, nc = _nseg(a, edge), _nseg(b, edge), _nseg(c, edge)
-    X, Y, Z = np.array([a, 0.0, 0.0]), np.array([0.0, b, 0.0]), np.array([0.0, 0.0, c])
-    lo = -0.5 * np.asarray(size)
-    faces = [  # (origin, U, W, nu, nw) with U x W = outward normal
-        (lo + X, Y, Z, nb, nc), (lo, Z, Y, nc, nb),
-        (lo + Y, Z, X, nc, na), (lo, X, Z, na, nc),
-        (lo + Z, X, Y, na, nb), (lo, Y, X, nb, na),
-    ]
-    Vs, Ts, off = [], [], 0
-    for o, U, W, nu, nw in faces:
-        V, T = _grid_face(o, U, W, nu, nw)
-        Vs.append(V)
-        Ts.append(T + off)
-        off += V.shape[0]
-    V, T = np.concatenate(Vs), np.concatenate(Ts)
-    V, T, _ = _weld(V, T, 1e-9 * float(np.linalg.norm(size)))
-    used, inv = np.unique(T, return_inverse=True)
-    return V[used], inv.reshape(T.shape).astype(np.int64)
-
-
-def _profile(kind: str, edge: float, radius: float, height: float, length: float) -> np.ndarray:
-    """(rho, z) points from the bottom pole to the top pole of a surface of revolution about z."""
-    pts: list[np.ndarray] = []
-
-    def arc(zc, phi0, phi1):
-        n = _nseg(abs(phi1 - phi0) * radius, edge)
-        phi = np.linspace(phi0, phi1, n + 1)
-        pts.append(np.stack([radius * np.cos(phi), zc + radius * np.sin(phi)], 1))
-
-    def line(p0, p1):
-        n = _nseg(float(np.hypot(p1[0] - p0[0], p1[1] - p0[1])), edge)
-        s = np.linspace(0.0, 1.0, n + 1)[:, None]
-        pts.append((1.0 - s) * np.asarray(p0) + s * np.asarray(p1))
-
-    if kind == "sphere":
-        arc(0.0, -0.5 * math.pi, 0.5 * math.pi)
-    elif kind == "cylinder":
-        z = 0.5 * height
-        line((0.0, -z), (radius, -z))
-        line((radius, -z), (radius, z))
-        line((radius, z), (0.0, z))
-    else:  # capsule
-        z = 0.5 * length
-        arc(-z, -0.5 * math.pi, 0.0)
-        if length > 0.0:
-            line((radius, -z), (radius, z))
-        arc(z, 0.0, 0.5 * math.pi)
-    P = np.concatenate(pts)
-    keep = np.ones(P.shape[0], bool)  # drop the repeated joints between pieces
-    keep[1:] = np.any(np.abs(np.diff(P, axis=0)) > 1e-12 * radius, axis=1)
-    P = P[keep]
-    P[0, 0] = P[-1, 0] = 0.0  # exact poles
-    return P
-
-
-def _revolve(profile: np.ndarray, edge: float) -> tuple[np.ndarray, np.ndarray]:
-    """Rings of vertices about z (outward for a profile going up), adjacent rings zipped by angle."""
-    V: list[np.ndarray] = []
-    rings: list[tuple[int, int, float]] = []  # (first vertex, count (1 = pole), angular offset)
-    off = 0
-    for j, (rho, z) in enumerate(profile):
-        if rho <= 0.0:
-            m, phase = 1, 0.0
-            V.append(np.array([[0.0, 0.0, z]]))
-        else:
-            m = max(3, int(round(2.0 * math.pi * rho / edge)))
-            phase = (j % 2) * math.pi / m  # stagger neighbouring rings
-            th = phase + 2.0 * math.pi * np.arange(m) / m
-            V.append(np.stack([rho * np.cos(th), rho * np.sin(th), np.full(m, z)], 1))
-        rings.append((off, m, phase))
-        off += m
-    T: list[tuple[int, int, int]] = []
-    for (a0, ma, pa), (b0, mb, pb) in zip(rings[:-1], rings[1:]):
-        na = 0 if ma == 1 else ma  # steps along each ring (none around a pole)
-        nb = 0 if mb == 1 else mb
-        i = j = 0
-        while i < na or j < nb:
-            next_a = pa + 2.0 * math.pi * (i + 1) / ma
-            next_b = pb + 2.0 * math.pi * (j + 1) / mb
-            A, B = a0 + i % ma, b0 + j % mb
-            if j >= nb or (i < na and next_a < next_b):
-                T.append((A, a0 + (i + 1) % ma, B))
-                i += 1
-            else:
-                T.append((A, b0 + (j + 1) % mb, B))
-                j += 1
-    return np.concatenate(V), np.asarray(T, dtype=np.int64)
-
-
-def primitive_surface(kind: str, *, center, R, edge: float, size=None, radius=None, height=None,
-                      length=None) -> SurfaceMesh:
-    """Triangulated surface of a built-in primitive with edges about `edge` long, outward-oriented.
-
-    kind: 'sheet' (OPEN flat rectangle, size=(a, b) full lengths along local x and y, normal =
-    local +z, centred at center), 'box' (size=(a, b, c)), 'sphere' (radius), 'cylinder'
-    (radius, height along local z, capped), 'capsule' (radius, length = distance between cap
-    centres along local z). R is a 3x3 rotation matrix (local axes = columns), applied about
-    the centre. Closed ones are validated like a mesh file; the sheet has ``closed=False``.
-    """
-    if kind not in PRIMITIVES:
-        raise InputError(f"unknown surface primitive {kind!r}; choose one of {', '.join(PRIMITIVES)}")
-    c = _vec3(center, "center")
-    M = _rotation(R)
-    e = _positive(edge, "edge")
-    what = f"{kind} surface"
-
-    def need(value, name):
-        if value is None:
-            raise InputError(f"{what}: {name} is required for a {kind}")
-        return value
-
-    if kind == "sheet":
-        s = need(size, "size=(a, b)")
-        try:
-            ab = np.asarray(s, dtype=np.float64).reshape(-1)
-        except (TypeError, ValueError):
-            ab = np.zeros(0)
-        if ab.shape != (2,) or not np.all(np.isfinite(ab)) or np.any(ab <= 0.0):
-            raise InputError(f"{what}: size must be 2 positive lengths (a, b) in metres, got {s!r}")
-        area = float(ab[0] * ab[1])
-    elif kind == "box":
-        abc = _size3(need(size, "size=(a, b, c)"))
-        area = 2.0 * float(abc[0] * abc[1] + abc[1] * abc[2] + abc[0] * abc[2])
-    else:
-        r = _positive(need(radius, "radius"), "radius")
-        hgt = _positive(need(height, "height"), "height") if kind == "cylinder" else 0.0
-        lng = _positive(need(length, "length"), "length", allow_zero=True) if kind == "capsule" else 0.0
-        area = 4.0 * math.pi * r * r + 2.0 * math.pi * r * (hgt + lng) + (2.0 * math.pi * r * r if hgt else 0.0)
-    n_tri = 2.3 * area / (e * e)  # ~ 2 triangles per edge^2 (rounded up for the ring zippers)
-    if n_tri > MAX_TRIANGLES:
-        raise InputError(
-            f"{what}: edge {e:g} m would give about {n_tri:,.0f} triangles (limit {MAX_TRIANGLES:,}); use an "
-            f"edge of at least {math.sqrt(2.3 * area / MAX_TRIANGLES):.3g} m"
-        )
-
-    if kind == "sheet":
-        V, T = _grid_face(np.array([-0.5 * ab[0], -0.5 * ab[1], 0.0]), np.array([ab[0], 0.0, 0.0]),
-                          np.array([0.0, ab[1], 0.0]), _nseg(ab[0], e), _nseg(ab[1], e))
-    elif kind == "box":
-        V, T = _box_local(abc, e)
-    else:
-        V, T = _revolve(_profile(kind, e, r, hgt, lng), e)
-    V = c + V @ M.T
-    V, T, repairs = validate_surface(V, T, what, allow_open=(kind == "sheet"))
-    return SurfaceMesh(V, T, "", repairs, closed=is_closed(T))
 
 
 # ----------------------------------------------------------------------------------------
@@ -490,117 +312,67 @@ def _blue_noise(V, T, area, n_target, h, rng):
 # ----------------------------------------------------------------------------------------
 # local thickness: first hit along the inward normal (rays against the mesh's BVH)
 # ----------------------------------------------------------------------------------------
-@njit(parallel=True, cache=True)
-def _first_hits(orig, dirs, V, Ts, node_lo, node_hi, start, end, left, pad, tmin):
-    """Distance along each ray to the first triangle beyond tmin (inf if none)."""
-    n = orig.shape[0]
-    out = np.empty(n)
-    for i in prange(n):
-        ox, oy, oz = orig[i, 0], orig[i, 1], orig[i, 2]
-        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
-        ix = 1.0 / dx if abs(dx) > 1e-300 else math.copysign(1e300, dx)
-        iy = 1.0 / dy if abs(dy) > 1e-300 else math.copysign(1e300, dy)
-        iz = 1.0 / dz if abs(dz) > 1e-300 else math.copysign(1e300, dz)
-        best = np.inf
-        stack = np.empty(128, np.int64)
-        stack[0] = 0
-        sp = 1
-        while sp > 0:
-            sp -= 1
-            k = stack[sp]
-            t0 = (node_lo[k, 0] - pad - ox) * ix
-            t1 = (node_hi[k, 0] + pad - ox) * ix
-            tn, tf = min(t0, t1), max(t0, t1)
-            t0 = (node_lo[k, 1] - pad - oy) * iy
-            t1 = (node_hi[k, 1] + pad - oy) * iy
-            tn, tf = max(tn, min(t0, t1)), min(tf, max(t0, t1))
-            t0 = (node_lo[k, 2] - pad - oz) * iz
-            t1 = (node_hi[k, 2] + pad - oz) * iz
-            tn, tf = max(tn, min(t0, t1)), min(tf, max(t0, t1))
-            if tf < max(tn, 0.0) or tn > best:
-                continue
-            if left[k] >= 0:
-                stack[sp] = left[k]
-                stack[sp + 1] = left[k] + 1
-                sp += 2
-                continue
-            for t in range(start[k], end[k]):
-                a, b, c = Ts[t, 0], Ts[t, 1], Ts[t, 2]
-                e1x, e1y, e1z = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
-                e2x, e2y, e2z = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
-                px = dy * e2z - dz * e2y
-                py = dz * e2x - dx * e2z
-                pz = dx * e2y - dy * e2x
-                det = e1x * px + e1y * py + e1z * pz
-                if det == 0.0:
-                    continue
-                idet = 1.0 / det
-                sx, sy, sz = ox - V[a, 0], oy - V[a, 1], oz - V[a, 2]
-                uu = (sx * px + sy * py + sz * pz) * idet
-                if uu < -1e-12 or uu > 1.0 + 1e-12:
-                    continue
-                qx = sy * e1z - sz * e1y
-                qy = sz * e1x - sx * e1z
-                qz = sx * e1y - sy * e1x
-                vv = (dx * qx + dy * qy + dz * qz) * idet
-                if vv < -1e-12 or uu + vv > 1.0 + 1e-12:
-                    continue
-                tt = (e2x * qx + e2y * qy + e2z * qz) * idet
-                if tt > tmin and tt < best:
-                    best = tt
-        out[i] = best
+def _available_depth(mesh, pts0, tri, dirs, fn, depths, h) -> tuple[np.ndarray, np.ndarray]:
+    """How deep each sample's layers may go: (deepest layer centre, depth of material on this side) [m].
+
+    Two ray casts per sample against the mesh. Along the inward normal of its triangle the body is t thick: a
+    layer centred at depth d fits if 2 d + MIN_INNER_GAP h <= t (the deepest layers from opposite sides stay h/2 apart), and this
+    side's material reaches t / 2. Along the sample's offset path the surface must lie beyond the layer: that is
+    the inside test of the inner points (the path starts into the body, since it moves every adjacent face plane
+    inwards, and does not cross the surface), except for the few samples whose path starts otherwise (degenerate
+    spots), which get the winding-number test of each layer point instead.
+    """
+    tmin = 1e-6 * h
+    half = 0.5 * ray_hits(mesh, pts0, -fn[tri], tmin)
+    centre = half - 0.5 * MIN_INNER_GAP * h
+    dl = np.linalg.norm(dirs, axis=1)
+    unit = dirs / np.where(dl > 0.0, dl, 1.0)[:, None]
+    exit_depth = ray_hits(mesh, pts0, -unit, tmin) / np.where(dl > 0.0, dl, np.inf)
+    if mesh.closed:
+        odd = np.flatnonzero(np.einsum("ij,ij->i", unit, fn[tri]) <= 0.0)
+        inner = depths[depths > 0.0]
+        exit_depth[odd] = np.inf
+        if odd.size and inner.size:
+            pts = np.concatenate([pts0[odd] - d * dirs[odd] for d in inner])
+            inside = inside_mesh(mesh, pts).reshape(inner.shape[0], -1)
+            first_out = np.argmin(np.vstack([inside, np.zeros((1, odd.size), bool)]), axis=0)
+            exit_depth[odd] = np.where(first_out < inner.shape[0], inner[np.minimum(first_out, inner.size - 1)],
+                                       np.inf)
+    exit_depth *= 1.0 - 1e-9
+    return np.minimum(centre, exit_depth), np.minimum(half, exit_depth)
+
+
+def _area_polynomials(V: np.ndarray, T: np.ndarray, vd: np.ndarray, fn: np.ndarray) -> np.ndarray:
+    """(nt, 3) coefficients c of each triangle's area at depth s, c0 + c1 s + c2 s^2: the triangle with its
+    vertices moved by -s d_v, projected on its original normal (as _offset_area sums them)."""
+    P, D = V[T], vd[T]
+    e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+    g1, g2 = D[:, 1] - D[:, 0], D[:, 2] - D[:, 0]
+    dot = lambda u, w: 0.5 * np.einsum("ij,ij->i", np.cross(u, w), fn)  # noqa: E731
+    return np.stack([dot(e1, e2), -(dot(e1, g2) + dot(g1, e2)), dot(g1, g2)], axis=1)
+
+
+def _first_root(c: np.ndarray) -> np.ndarray:
+    """Smallest positive s where c0 + c1 s + c2 s^2 falls to (nearly) zero: the offset triangle turns over, or
+    shrinks to a point and grows again turned by half a turn (a square face shrinking evenly: a double root, which
+    the 1e-6 margin splits); inf if none."""
+    c0, c1, c2 = c[:, 0] * (1.0 - 1e-6), c[:, 1], c[:, 2]
+    out = np.full(c.shape[0], np.inf)
+    lin = np.abs(c2) <= 1e-12 * np.maximum(np.abs(c1), 1e-300) * np.maximum(np.abs(c0 / np.where(c1 != 0, c1, 1)), 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = -c0 / c1
+        out[lin & (r > 0)] = r[lin & (r > 0)]
+        disc = c1 * c1 - 4.0 * c2 * c0
+        sq = np.sqrt(np.maximum(disc, 0.0))
+        for root in ((-c1 - sq) / (2.0 * c2), (-c1 + sq) / (2.0 * c2)):
+            ok = ~lin & (disc >= 0.0) & (root > 0.0)
+            out[ok] = np.minimum(out[ok], root[ok])
     return out
 
 
-def _too_thick(what, depths, h, point, t) -> InputError:
-    layers = depths.shape[0]
-    s = depths[0] / h  # depth of the first layer [h]
-    L_max = max(1, int(math.floor((t / h - MIN_INNER_GAP) / 2.0 - s + 1.0)))
-    h_max = t / (2.0 * (layers - 1 + s) + MIN_INNER_GAP)
-    return InputError(
-        f"{what}: the shell ({layers} layers x spacing h = {h:g} m, layers*h = {layers * h:.4g} m thick) is "
-        f"thicker than the body near {_fmt_point(point)}, where the body is only about {t:.3g} m thick: the "
-        f"layers from opposite sides would overlap. Use fewer layers (at most {L_max} there) or a smaller "
-        f"spacing h (at most {h_max:.3g} m with {layers} layers)"
-    )
-
-
-def _check_thickness(mesh, pts0, tri, nrm, dirs, fn, areas, depths, h, what) -> None:
-    """Raise if the layers would overlap across the body or leave it (see the module doc).
-
-    Two ray casts per sample against the mesh: along the inward normal the surface must be
-    ``2 * deepest + MIN_INNER_GAP h`` away; along the sample's offset path the surface must
-    lie beyond the deepest layer point. The second is the inside test of the inner points:
-    the path starts into the body (it moves every adjacent face plane inwards) and does not
-    cross the surface, so all its points are inside; the few samples whose path starts
-    otherwise (degenerate spots) get the winding-number test instead.
-    """
-    V = mesh.vertices
-    (Ts, lo, hi, start, end, left, _, _), pad = _hierarchy(mesh)
-    tmin = 1e-6 * h
-    thick = _first_hits(pts0, -nrm, V, Ts, lo, hi, start, end, left, pad, tmin)
-    i = int(np.argmin(thick))
-    deepest = float(depths[-1])
-    if thick[i] < 2.0 * deepest + MIN_INNER_GAP * h:
-        raise _too_thick(what, depths, h, pts0[i], float(thick[i]))
-    bad = np.flatnonzero(areas <= 0.0)
-    if bad.size:  # the offset surface turned inside out: deeper than the body's half thickness
-        raise _too_thick(what, depths, h, pts0[i], float(min(thick[i], 2.0 * depths[bad[0]] - h)))
-    dl = np.linalg.norm(dirs, axis=1)
-    unit = dirs / np.where(dl > 0.0, dl, 1.0)[:, None]
-    along = _first_hits(pts0, -unit, V, Ts, lo, hi, start, end, left, pad, tmin)
-    out = along <= deepest * dl * (1.0 + 1e-9)
-    if mesh.closed:
-        odd = np.einsum("ij,ij->i", unit, fn[tri]) <= 0.0
-        out &= ~odd
-        inner = depths[depths > 0.0]
-        if odd.any():
-            pts = np.concatenate([pts0[odd] - d * dirs[odd] for d in inner])
-            outside = ~inside_mesh(mesh, pts).reshape(inner.shape[0], -1).all(axis=0)
-            out[np.flatnonzero(odd)[outside]] = True
-    if out.any():
-        j = int(np.flatnonzero(out)[np.argmin(thick[out])])
-        raise _too_thick(what, depths, h, pts0[j], float(min(thick[j], along[j])))
+def _slab_area(c: np.ndarray, s0: np.ndarray, s1: np.ndarray) -> np.ndarray:
+    """Integral of c0 + c1 s + c2 s^2 over [s0, s1] (the volume under a triangle between two depths)."""
+    return c[:, 0] * (s1 - s0) + c[:, 1] * (s1**2 - s0**2) / 2.0 + c[:, 2] * (s1**3 - s0**3) / 3.0
 
 
 # ----------------------------------------------------------------------------------------
@@ -608,12 +380,19 @@ def _check_thickness(mesh, pts0, tri, nrm, dirs, fn, areas, depths, h, what) -> 
 # ----------------------------------------------------------------------------------------
 @dataclass
 class ShellSample:
-    """Material points of a shell body, layer by layer (layer 0 first, n0 points per layer)."""
+    """Material points of a shell body, layer by layer (layer 0 first; where the body is thin a sample has fewer
+    layers than asked for, so deeper layers hold fewer points)."""
 
     points: np.ndarray  # (n, 3) material points [m]
     volumes: np.ndarray  # (n,) volume of each point [m^3]
     layer: np.ndarray  # (n,) int32, 0 = on the surface, k = depth k*h (plus first_depth * h if given)
     normals: np.ndarray  # (n, 3) outward unit normal of the surface at the point's surface location
+    thin: np.ndarray = None  # (n,) bool: the deepest point of a sample whose layers were cut short (body too thin)
+    notes: list[str] = field(default_factory=list)  # where the shell differs from what was asked (fewer layers)
+
+    def __post_init__(self):
+        if self.thin is None:
+            self.thin = np.zeros(len(self.points), dtype=bool)
 
 
 def shell_particles(mesh: SurfaceMesh, h: float, layers: int, rng: np.random.Generator,
@@ -666,23 +445,75 @@ def shell_particles(mesh: SurfaceMesh, h: float, layers: int, rng: np.random.Gen
     nrm = np.einsum("ik,ikd->id", bary, vn[T[tri]])
     nl = np.linalg.norm(nrm, axis=1)
     nrm /= np.where(nl > 0.0, nl, 1.0)[:, None]
-    areas = np.full(layers, A)
-    pts = pts0
-    if deep:
-        dirs = np.einsum("ik,ikd->id", bary, vd[T[tri]])  # displacement per unit depth of each sample
-        for k in range(layers):
-            if depths[k] > 0.0:
-                areas[k] = _offset_area(V - depths[k] * vd, T, fn)
-        _check_thickness(mesh, pts0, tri, nrm, dirs, fn, areas, depths, h, what)
-        pts = np.concatenate([pts0 - d * dirs for d in depths])
-    if pts.shape[0] > MAX_POINTS:
+    if not deep:
+        return ShellSample(pts0, np.full(n0, A * h / n0), np.zeros(n0, np.int32), nrm)
+    dirs = np.einsum("ik,ikd->id", bary, vd[T[tri]])  # displacement per unit depth of each sample
+    coef = _area_polynomials(V, T, vd, fn)
+    limit, material = _available_depth(mesh, pts0, tri, dirs, fn, depths, h)
+    turn = _first_root(coef)[tri] - 0.01 * h  # where the sample's offset triangle turns over: no point there
+    limit, material = np.minimum(limit, turn), np.minimum(material, turn)
+    kept = np.maximum(1, (depths[None, :] <= limit[:, None]).sum(axis=1))  # layers are consecutive from 0
+    if np.all(kept == layers):
+        areas = np.array([_offset_area(V - d * vd, T, fn) if d > 0.0 else A for d in depths])
+        sample = ShellSample(np.concatenate([pts0 - d * dirs for d in depths]), np.repeat(areas * h / n0, n0),
+                             np.repeat(np.arange(layers, dtype=np.int32), n0), np.tile(nrm, (layers, 1)))
+    else:
+        share = _surface_shares(V, T, area, fn, pts0, tri, h, rng)
+        sample = _cut_layers(pts0, dirs, nrm, coef[tri], kept, material, depths, h, share)
+        cut = kept < layers
+        at = pts0[np.flatnonzero(cut)[np.argmin(kept[cut])]]
+        sample.notes.append(
+            f"the body is thinner than its {layers} layers x 2 sides x h = {2 * layers * h:.3g} m in places (e.g. "
+            f"near {_fmt_point(at)}): {int(cut.sum())} of {n0} surface points have fewer layers there (down to "
+            f"{int(kept.min())}), their deepest point filling the body to its middle")
+    if sample.points.shape[0] > MAX_POINTS:
         raise InputError(
-            f"{what}: {pts.shape[0]:,} material points (limit {MAX_POINTS:,}); use a larger spacing than "
+            f"{what}: {sample.points.shape[0]:,} material points (limit {MAX_POINTS:,}); use a larger spacing than "
             f"h = {h:g} m or fewer layers"
         )
-    volumes = np.repeat(areas * h / n0, n0)
-    layer = np.repeat(np.arange(layers, dtype=np.int32), n0)
-    return ShellSample(pts, volumes, layer, np.tile(nrm, (layers, 1)))
+    return sample
+
+
+def _surface_shares(V, T, area, fn, pts0, tri, h, rng, per_point: int = 16) -> np.ndarray:
+    """The surface area each sample stands for: uniform points on the surface (per_point per sample) go to their
+    nearest sample, in position and face normal (h n), so that across a crease a point goes to the samples of its
+    own face. Dart throwing leaves narrow strips (a plate's rim) with fewer samples than their area's share, so
+    A / n0 per sample would overweight the faces next to them."""
+    cum = np.cumsum(area)
+    m = per_point * pts0.shape[0]
+    t = np.minimum(np.searchsorted(cum, rng.random(m) * cum[-1], side="right"), T.shape[0] - 1)
+    u, v = rng.random(m), rng.random(m)
+    flip = u + v > 1.0
+    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
+    P = V[T[t, 0]] + u[:, None] * (V[T[t, 1]] - V[T[t, 0]]) + v[:, None] * (V[T[t, 2]] - V[T[t, 0]])
+    nearest = cKDTree(np.hstack([pts0, h * fn[tri]])).query(np.hstack([P, h * fn[t]]))[1]
+    return cum[-1] * np.bincount(nearest, minlength=pts0.shape[0]) / m
+
+
+def _cut_layers(pts0, dirs, nrm, coef, kept, material, depths, h, share) -> ShellSample:
+    """Layers of samples that keep only kept[i] of them: every point stands for its slab of the offset surface,
+    its sample's surface share times the integral of its triangle's area ratio over the slab (which keeps the total
+    the volume under the surface, per triangle); the deepest point of a cut sample takes the slab down to the middle of the
+    body (`material`) and sits at its centre."""
+    half = 0.5 * h
+    pts, vols, lay, nrms, thin = [], [], [], [], []
+    a0 = np.where(coef[:, 0] > 0.0, coef[:, 0], 1.0)
+    for k, d in enumerate(depths):
+        i = np.flatnonzero(kept > k)
+        if i.size == 0:
+            break
+        s0 = np.full(i.size, d - half)
+        s1 = np.full(i.size, d + half)
+        last = (kept[i] == k + 1) & (kept[i] < depths.size)
+        s1[last] = np.maximum(material[i[last]], s0[last] + 1e-6 * h)
+        centre = np.where(last, 0.5 * (s0 + s1), d)
+        pts.append(pts0[i] - centre[:, None] * dirs[i])
+        vols.append(share[i] * np.maximum(_slab_area(coef[i], s0, s1), 0.0) / a0[i])
+        lay.append(np.full(i.size, k, np.int32))
+        nrms.append(nrm[i])
+        thin.append(last)
+    return ShellSample(np.concatenate(pts), np.concatenate(vols), np.concatenate(lay), np.concatenate(nrms),
+                       np.concatenate(thin))
 
 
 #: inner-layer points closer than this to a point already kept are merged into it [h]
@@ -695,9 +526,11 @@ def thin_crowded(sample: ShellSample, h: float, min_sep: float = THIN_SEPARATION
     volume given to the nearest kept point. Crowded pairs would otherwise set a tiny bond time step and
     add hundreds of bonds per point; the total volume is unchanged."""
     r = min_sep * h
-    keep = sample.layer == 0
-    for k in range(1, int(sample.layer.max(initial=0)) + 1):
-        idx = np.flatnonzero(sample.layer == k)
+    keep = (sample.layer == 0) & ~sample.thin  # points moved to the middle of a thin part may crowd too
+    for k in range(0, int(sample.layer.max(initial=0)) + 1):
+        idx = np.flatnonzero((sample.layer == k) & ~keep)
+        if idx.size == 0:
+            continue
         if np.any(keep):
             near = cKDTree(sample.points[keep]).query(sample.points[idx], distance_upper_bound=r)[0]
             idx = idx[~np.isfinite(near)]
@@ -712,33 +545,5 @@ def thin_crowded(sample: ShellSample, h: float, min_sep: float = THIN_SEPARATION
     dropped = np.flatnonzero(~keep)
     into = cKDTree(sample.points[keep]).query(sample.points[dropped])[1]
     np.add.at(volumes, into, sample.volumes[dropped])
-    return ShellSample(sample.points[keep], volumes, sample.layer[keep], sample.normals[keep])
-
-
-# ----------------------------------------------------------------------------------------
-# embedding
-# ----------------------------------------------------------------------------------------
-def embed_points(points: np.ndarray, particles: np.ndarray, k: int = 8) -> tuple[np.ndarray, np.ndarray]:
-    """Each of `points` (m,3) is tied to its k nearest `particles` (n,3) with smooth positive weights summing to 1.
-
-    Wendland C2 weights (1 - q)^4 (1 + 4 q), q = d / (1.5 d_k), d_k the distance to the k-th
-    nearest; returns (idx (m,k) int64, w (m,k) float64); if n < k, k = n. A vertex placed at
-    sum_i w_i (x_i + F_i (X - X_i)) then moves exactly with any affine motion.
-    """
-    X = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-    Pp = np.ascontiguousarray(particles, dtype=np.float64).reshape(-1, 3)
-    if Pp.shape[0] == 0:
-        raise ValueError("embed_points needs at least one particle")
-    k = int(min(k, Pp.shape[0]))
-    if k < 1:
-        raise ValueError(f"k must be >= 1, got {k}")
-    if X.shape[0] == 0:
-        return np.zeros((0, k), np.int64), np.zeros((0, k))
-    d, idx = cKDTree(Pp).query(X, k=k)
-    d = np.asarray(d, dtype=np.float64).reshape(X.shape[0], k)
-    idx = np.asarray(idx, dtype=np.int64).reshape(X.shape[0], k)
-    support = 1.5 * d[:, -1:]
-    q = np.divide(d, support, out=np.zeros_like(d), where=support > 0.0)
-    w = (1.0 - q) ** 4 * (1.0 + 4.0 * q)
-    w /= w.sum(axis=1, keepdims=True)
-    return idx, w
+    return ShellSample(sample.points[keep], volumes, sample.layer[keep], sample.normals[keep], sample.thin[keep],
+                       sample.notes)

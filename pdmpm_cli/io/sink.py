@@ -28,6 +28,14 @@ class FrameWriter(Protocol):
     def close(self) -> None: ...
 
 
+def check_order(path, closed: bool, last_index: int, index: int) -> None:
+    """A writer takes frames in increasing order until it is closed; ValueError otherwise."""
+    if closed:
+        raise ValueError(f"{path}: writer is closed")
+    if index <= last_index:
+        raise ValueError(f"frame index {index} out of order: the last frame written was {last_index}")
+
+
 class FrameWriteError(PdmpmError):
     """Writing or closing an output failed; the original exception is the ``__cause__``."""
 

@@ -20,6 +20,7 @@ import numpy as np
 
 from pdmpm_cli.errors import InputError
 from pdmpm_cli.io.atomic import atomic_path, atomic_write_text
+from pdmpm_cli.io.sink import check_order
 
 POSITION_FIELD = "particle_x"
 PVD_NAME = "particles.pvd"
@@ -113,10 +114,7 @@ class VtkSeriesWriter:
 
     def write_frame(self, index: int, time: float, fields: dict[str, np.ndarray]) -> None:
         """Write frame ``index`` (greater than the previous one) and update the collection."""
-        if self._closed:
-            raise ValueError(f"{self.path}: writer is closed")
-        if index <= self._last_index:
-            raise ValueError(f"frame index {index} out of order: the last frame written was {self._last_index}")
+        check_order(self.path, self._closed, self._last_index, index)
         if POSITION_FIELD not in fields:
             raise ValueError(f"frame {index} has no {POSITION_FIELD!r} field to use as point positions")
         points = np.asarray(fields[POSITION_FIELD])

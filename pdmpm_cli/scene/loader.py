@@ -451,17 +451,36 @@ def load_scene(path: str | os.PathLike, model_cls: type[M], overrides: Sequence[
     edits = parse_overrides(list(overrides))
     text = _read(path, file)
     tree = _Tree(file, text)
-    set_paths = []
-    if variant is not None:
-        set_paths = [(_apply(tree.data, keys, value, file, mark), file, mark)
-                     for keys, value, mark in _variant_edits(tree, variant)]
-    set_paths += [(_apply(tree.data, keys, value), OVERRIDE, None) for keys, value in edits]
+    set_paths = _edit(tree, edits, variant)
     try:
         return model_cls.model_validate(tree.data), text
     except ValidationError as e:
         problems = {str(p): p for p in (_problem(err, model_cls, tree, set_paths) for err in e.errors())}
         order = lambda p: (p.file == OVERRIDE, p.line or 0, p.col or 0)  # noqa: E731
         raise SceneError(sorted(problems.values(), key=order)) from None
+
+
+def _edit(tree: _Tree, edits, variant: str | None) -> list[tuple[DataPath, str, Mark | None]]:
+    """Apply the variant's overrides, then --set's, to the tree's data; return (path set, source, mark) of each."""
+    set_paths = []
+    if variant is not None:
+        set_paths = [(_apply(tree.data, keys, value, tree.file, mark), tree.file, mark)
+                     for keys, value, mark in _variant_edits(tree, variant)]
+    return set_paths + [(_apply(tree.data, keys, value), OVERRIDE, None) for keys, value in edits]
+
+
+def locate(error, path: str | os.PathLike, text: str, overrides: Sequence[str] = (),
+           variant: str | None = None) -> InputError:
+    """A SceneValueError (bad input found past the schema: a broken mesh file, a body larger than the domain) as a
+    SceneError pointing at its key's line in the scene file, or at the --set or variant line that set it."""
+    if not error.key:
+        return error
+    tree = _Tree(str(path), text)
+    key = tuple(error.key)
+    for sp, source, mark in reversed(_edit(tree, parse_overrides(list(overrides)), variant)):
+        if key[: len(sp)] == sp:
+            return SceneError([Problem(source, *(mark or (None, None)), _dotted(key), error.message)])
+    return SceneError([Problem(tree.file, *(tree.where(key) or (None, None)), _dotted(key), error.message)])
 
 
 def merge(base: dict, changes: dict) -> dict:

@@ -55,13 +55,44 @@ class CapsuleShape(Placed):
     length: float = Field(ge=0, description="Distance between the two cap centres, along local z [m].")
 
 
+class MeshFit(Strict):
+    """Place a mesh by size, as the built-in bunny's height and center: the mesh (after units, scale and rotation)
+    is scaled uniformly so that its bounding box has this size, and moved so that the box's centre is `center`."""
+
+    size: float = Field(gt=0, description="Length of the bounding box along `axis` after fitting [m].")
+    axis: Literal["x", "y", "z", "longest"] = Field(
+        "longest", description="Which edge of the bounding box `size` sets: x, y, z or the longest one [-].")
+    center: Vec3 = Field(description="Centre of the fitted bounding box in world coordinates [m].")
+
+
 class MeshShape(Strict):
+    """A closed surface mesh file. Its coordinates become metres as x = R (units * scale * x_file) + translate
+    (R the rotation about the file's origin), or, with `fit`, scaled and moved to a given size and centre."""
+
     type: Literal["mesh"]
-    path: str = Field(description="Closed surface mesh readable by meshio (OBJ, STL, PLY, OFF, VTK...), "
-                                  "relative to the scene file.")
-    scale: float = Field(1.0, gt=0, description="Uniform scale applied to the mesh's vertices [-].")
+    path: str = Field(description="Mesh file relative to the scene file: OBJ (with texture and normal indices, "
+                                  "groups, materials, polygons), STL (ascii or binary), PLY, OFF, glTF/GLB, "
+                                  "VTK/VTU.")
+    units: Literal["m", "cm", "mm"] = Field(
+        "m", description="Length unit of the file's coordinates (CAD files are often in mm); converted to metres "
+                         "before scale [-].")
+    scale: float | Vec3 = Field(
+        1.0, description="Scale factor applied to the file's coordinates after units: one number, or one per axis "
+                         "[x, y, z] [-].")
     translate: Vec3 = Field((0.0, 0.0, 0.0), description="Translation applied after scale and rotation [m].")
     rotation: Vec3 = Field((0.0, 0.0, 0.0), description="Rotation about x, y then z through the origin [degrees].")
+    fit: MeshFit | None = Field(
+        None, description="Fit the mesh to a size and centre instead of translating it (see MeshFit); absent: the "
+                          "file's coordinates as they are (after units, scale, rotation and translate).")
+
+    @model_validator(mode="after")
+    def _placement(self):
+        factors = (self.scale,) if isinstance(self.scale, (int, float)) else self.scale
+        if min(factors) <= 0:
+            raise ValueError(f"scale must be positive (got {self.scale})")
+        if self.fit is not None and any(self.translate):
+            raise ValueError("give translate or fit (whose center places the mesh), not both")
+        return self
 
 
 class BunnyShape(Placed):
@@ -135,8 +166,9 @@ class ShellGeometry(Strict):
     horizon: float = Field(
         2.0, gt=1.0, le=4.0, description="Peridynamic horizon delta as a multiple of the spacing h [-].")
     edge: float | None = Field(
-        None, gt=0, description="Edge length of the triangles of a built-in surface (sheet, box, sphere, ...) "
-        "written as the animated mesh [m]; default the spacing. Mesh files keep their own triangles.")
+        None, gt=0, description="Longest edge of the triangles written as the animated mesh [m]; default the "
+        "spacing. Built-in surfaces (sheet, box, sphere, ...) are triangulated at it; a mesh file's longer edges are "
+        "split (its shape is kept, its vertices keep their numbers), so that the surface bends with the particles.")
 
 
 class VoronoiGeometry(Strict):
@@ -369,6 +401,10 @@ class Output(Strict):
     vtk: bool = Field(True, description="Write a VTU file per frame and a .pvd index for ParaView.")
     meshes: bool = Field(True, description="Shell and Voronoi bodies: write their moving surface or cell "
                                            "polyhedra as one PLY file per frame (meshes/<body>_NNNNN.ply).")
+    usd: bool = Field(False, description="Write one USD file (run.usd: metres, +y up, a time sample per frame) with "
+                                         "each body's particles as points (width, velocities, the fields below as "
+                                         "primvars) and its shell surface or Voronoi cells as an animated mesh, for "
+                                         "Houdini, Blender or Omniverse. Needs usd-core (pip install usd-core).")
     fields: list[FieldName] = Field(
         default_factory=lambda: ["particle_v", "particle_speed"],
         description="Per-frame fields besides particle_x (always written).",
