@@ -213,7 +213,7 @@ def pdmpm_table(folder, corpus, broken):
         path.write_text(SCENE.format(shape=f"{{type: mesh, path: good/{m.name}, units: {m.units}, "
                                            f"translate: [{shift}]}}"))
         prep = prepare(path)
-        from pdmpm_cli.engine.discretize import load_mesh_shape
+        from pdmpm_cli.discretize import load_mesh_shape
 
         mesh = load_mesh_shape(prep.scene.bodies[0].geometry.shape, folder)
         reader = "trimesh" if Path(m.name).suffix in TRIMESH_FORMATS else "meshio"
