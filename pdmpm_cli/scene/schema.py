@@ -9,15 +9,18 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
+from pydantic_core import InitErrorDetails, PydanticCustomError
 
 Vec3 = tuple[float, float, float]
+MAX_FRAMES = 100_000  # duration x fps; an hour at 30 fps is 108,000 frames of output per particle
 
 
 class Strict(BaseModel):
-    """Base for every scene model: immutable, unknown keys rejected."""
+    """Base for every scene model: immutable, unknown keys rejected, every float finite (.inf and .nan are
+    refused where they are written, not met as a blow-up or an overflow later)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 # ---------------------------------------------------------------- shapes
@@ -399,6 +402,15 @@ class Simulation(Strict):
                            "elastic and plastic bodies without fracture). `pdmpm run --backend` overrides it."
     )
 
+    @field_validator("fps")
+    @classmethod
+    def _frames(cls, fps: float, info: ValidationInfo) -> float:
+        duration = info.data.get("duration")
+        if duration is not None and duration * fps > MAX_FRAMES:
+            raise ValueError(f"{duration:g} s at {fps:g} frames/s is {duration * fps:.3g} frames, more than "
+                             f"{MAX_FRAMES:,}; lower fps (at most {MAX_FRAMES / duration:.3g} for this duration)")
+        return fps
+
 
 class Wind(Strict):
     """A uniform wind: linear drag pulling material towards the wind velocity, a = drag (velocity - v)."""
@@ -497,6 +509,27 @@ class Scene(Strict):
     variants: dict[str, dict[str, Any]] = Field(
         default_factory=dict, description="Named sets of overrides, each a mapping 'dotted.key: value' as in --set "
         "(e.g. soft: {bodies.0.material.mu: 2.0e4}); `pdmpm run scene.yaml --variant soft` applies one.")
+
+    @field_validator("bodies")
+    @classmethod
+    def _resolved(cls, bodies: list[Body], info: ValidationInfo) -> list[Body]:
+        """A particle spacing above the cell leaves cells inside the body without particles: holes in the
+        grid's quadrature (MPM wants about 2 particles per cell per axis, the default spacing)."""
+        grid = info.data.get("grid")
+        if grid is None:
+            return bodies
+        dx, errors = grid.cell_size, []
+        for i, body in enumerate(bodies):
+            h = getattr(body.geometry, "spacing", None)
+            if h is not None and h > dx and body.geometry.mode != "voronoi":
+                message = (f"{h:g} m is larger than the grid cell ({dx:g} m): cells inside the body would hold no "
+                           f"particle; use at most {dx:g} m, or leave spacing out for {dx / 2:g} m (2 particles per "
+                           f"cell per axis)")
+                errors.append(InitErrorDetails(type=PydanticCustomError("spacing_above_cell", message),
+                                               loc=(i, "geometry", "spacing"), input=h))
+        if errors:
+            raise ValidationError.from_exception_data(cls.__name__, errors)
+        return bodies
 
     @model_validator(mode="after")
     def _unique_names(self):
