@@ -10,7 +10,7 @@ from typing import Protocol
 
 import numpy as np
 
-from pdmpm_cli import checkpoint
+from pdmpm_cli import budget, checkpoint
 from pdmpm_cli.engine.materials.plastic import particle_plastic_strain
 from pdmpm_cli.engine.discretize import Discretization, discretize
 from pdmpm_cli.engine.embedding import mesh_positions
@@ -61,7 +61,9 @@ def prepare_resume(out: Path, scene=None, overrides=(), variant: str | None = No
 
 
 def prepare_scene(scene: Scene, path: Path, text: str = "") -> Prepared:
-    """Discretise a validated scene (relative mesh paths resolve beside `path`) and make the Plan."""
+    """Discretise a validated scene (relative mesh paths resolve beside `path`) and make the Plan; a scene whose
+    estimated memory exceeds what the machine has free is refused before sampling."""
+    budget.check_memory(scene, Path(path).parent, str(path))
     disc = discretize(scene, Path(path).parent)
     model = Model.build(scene, disc)
     return Prepared(Path(path), scene, text, disc, model, make_plan(scene, disc, model))
@@ -202,6 +204,8 @@ def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwr
         meshes = prep.disc.meshes
         writers = _writers(prep, out, static_fields(model, meshes), first + 1 if resume else 0)
         every, head = scene.output.checkpoint_every, checkpoint.header(prep)
+        if resume is not None:  # the thread count the run started with, which identical frames need
+            head["threads"] = resume.attrs["threads"]
         if reporter:
             reporter.start(plan, first)
         on_substep = reporter.substep if reporter else None
