@@ -17,3 +17,10 @@ class SimulationError(PdmpmError):
     """The simulation failed (NaN, runaway energy, particles leaving the domain). Exit code 1."""
 
     exit_code = 1
+
+
+class OutputError(PdmpmError):
+    """An output could not be written (a full disk, a file-size limit, no permission); what was written before
+    stays complete. Exit code 1."""
+
+    exit_code = 1
