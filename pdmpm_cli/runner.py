@@ -15,6 +15,7 @@ from pdmpm_cli.engine.materials.plastic import particle_plastic_strain
 from pdmpm_cli.engine.discretize import Discretization, discretize
 from pdmpm_cli.engine.embedding import mesh_positions
 from pdmpm_cli.engine.model import Model, State
+from pdmpm_cli.engine.transfer import WALL
 from pdmpm_cli.engine.solver import Solver
 from pdmpm_cli.errors import InputError
 from pdmpm_cli.io.lock import LOCK_NAME, OutputLock
@@ -164,8 +165,9 @@ def _writers(prep: Prepared, out: Path, static: dict, keep: int) -> list:
     if scene.output.hdf5 and keep:
         writers.append(Hdf5RunWriter.reopen(out / "run.h5", keep))
     elif scene.output.hdf5:
-        # The plan carries the scene as validated (with --set and --variant applied) for readers such as render.
-        record = {**prep.plan.to_dict(), "scene": scene.model_dump(mode="json")}
+        # The plan carries the scene as validated (with --set and --variant applied) and the grid's wall layer for
+        # readers such as render.
+        record = {**prep.plan.to_dict(), "scene": scene.model_dump(mode="json"), "wall_cells": WALL}
         writers.append(Hdf5RunWriter(out / "run.h5", scene_text=prep.text, plan=json.loads(json.dumps(
             record, default=_jsonable)), static=static, compression=scene.output.compression))
     if scene.output.vtk:
