@@ -48,7 +48,7 @@ app.command("sweep")(_stoppable(sweep.sweep))
 app.command("stability")(_stoppable(stability.stability))
 app.command("study")(_stoppable(study.study))
 
-err_console = Console(stderr=True, highlight=False)
+err_console = Console(stderr=True, highlight=False, emoji=False)
 
 
 def _exit(code: int):

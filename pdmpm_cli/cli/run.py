@@ -90,7 +90,7 @@ def run(
     from pdmpm_cli.scene.loader import load_scene
     from pdmpm_cli.scene.schema import Scene
 
-    console = Console(stderr=True, highlight=False, soft_wrap=True)
+    console = Console(stderr=True, highlight=False, emoji=False, soft_wrap=True)
     overrides = [*set_, f"simulation.backend={backend.value}"] if backend else set_
     if resume is not None:
         if overwrite or (out is not None and out.resolve() != resume.resolve()):
@@ -141,7 +141,7 @@ def run(
         raise
     except OutputError as error:
         then = (f"once there is room, continue it with: pdmpm run --resume {out}" if (out / "checkpoints").is_dir()
-                else f"once there is room, start it again with --overwrite")
+                else "once there is room, start it again with --overwrite")
         raise OutputError(f"{error}; the frames written before are complete and readable; {then}") from error
     finally:
         reporter.stop()

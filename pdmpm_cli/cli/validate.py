@@ -28,7 +28,7 @@ def validate(
     from pdmpm_cli.budget import gib, output_bytes, warnings
     from pdmpm_cli.runner import prepare
 
-    console = Console(highlight=False, soft_wrap=True)
+    console = Console(highlight=False, emoji=False, soft_wrap=True)
     prep = prepare(scene, set_, variant)
     plan = prep.plan
     for w in [*plan.warnings(), *warnings(prep)]:

@@ -7,6 +7,7 @@ geometry modes, materials and colliders are discriminated unions keyed by `type`
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
@@ -473,6 +474,21 @@ class Camera(Strict):
     focus: Vec3 = Field(description="Point the camera looks at [m].")
     up: Vec3 = Field((0.0, 1.0, 0.0), description="Up direction of the image [-].")
     view_angle: float = Field(30.0, gt=0, lt=180, description="Vertical field of view [degrees].")
+
+    @model_validator(mode="after")
+    def _direction(self):
+        view = [f - p for p, f in zip(self.position, self.focus)]
+        length = math.hypot(*view)
+        if length == 0:
+            raise ValueError(f"position and focus are the same point {list(self.position)}: the camera has no "
+                             f"direction to look in; move the position away from the focus")
+        up = math.hypot(*self.up)
+        side = math.hypot(*(self.up[i] * view[(i + 1) % 3] - self.up[(i + 1) % 3] * view[i] for i in range(3)))
+        if up == 0 or side <= 1e-6 * up * length:
+            raise ValueError(f"up {list(self.up)} is zero or along the view direction {[round(v, 6) for v in view]}: "
+                             f"the image has no up; give an up direction across the view, e.g. [0, 1, 0] or "
+                             f"[0, 0, 1]")
+        return self
 
 
 class RenderSettings(Strict):
