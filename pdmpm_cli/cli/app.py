@@ -65,8 +65,7 @@ def _exit(code: int):
 def main():
     """Entry point: user-facing errors print one clear message and exit 2 (bad input) or 1 (failed run);
     Ctrl-C and SIGTERM stop a run with its frames and checkpoints kept (exit 130 and 143)."""
-    signals.install()
-    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # past `ulimit -f` a write fails with EFBIG, reported, not fatal
+    signals.install()  # (SIGXFSZ, sent past `ulimit -f`, is ignored by Python: such a write fails with EFBIG)
     try:
         app()
     except PdmpmError as e:

@@ -140,9 +140,14 @@ def run(
             console.print(f"continue it with: pdmpm run --resume {escape(str(out))}")
         raise
     except OutputError as error:
-        then = (f"once there is room, continue it with: pdmpm run --resume {out}" if (out / "checkpoints").is_dir()
+        from pdmpm_cli.io.hdf5 import abandoned
+
+        kept = ("run.h5 is left as HDF5 had it and may not open" if abandoned() else
+                "the frames written before are complete and readable")
+        resumable = (out / "checkpoints").is_dir() and not abandoned()
+        then = (f"once there is room, continue it with: pdmpm run --resume {out}" if resumable
                 else "once there is room, start it again with --overwrite")
-        raise OutputError(f"{error}; the frames written before are complete and readable; {then}") from error
+        raise OutputError(f"{error}; {kept}; {then}") from error
     finally:
         reporter.stop()
     wall = time.perf_counter() - t0

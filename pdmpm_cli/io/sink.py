@@ -10,6 +10,7 @@ the same order. A writer failure is raised in the simulation thread on the next 
 from __future__ import annotations
 
 import queue
+import re
 import threading
 from collections.abc import Callable, Sequence
 from typing import Protocol
@@ -45,6 +46,9 @@ def _reason(exc: BaseException) -> str:
         return str(exc)
     if isinstance(exc, OSError) and exc.strerror:
         return f"{exc.strerror}: {exc.filename}" if exc.filename else exc.strerror
+    found = re.search(r"error message = '([^']*)'", str(exc))  # HDF5's report of a failed system call
+    if found:
+        return f"{found[1].lower()} (inside HDF5: {str(exc).split(' (')[0]})"
     return f"{type(exc).__name__}: {exc}"
 
 
