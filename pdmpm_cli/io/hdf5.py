@@ -35,8 +35,9 @@ Full disks: every write first reserves its bytes (``posix_fallocate``) past the 
 disk or a file-size limit (``ulimit -f``) fails there, before HDF5 has written anything of the frame, and the
 file closes cleanly with its complete frames. A failed write inside HDF5 cannot be recovered in-process: the
 library's close then frees memory twice, and the process dies with a segmentation fault at the next garbage
-collection or at exit (h5py issue 914). A writer that meets any other HDF5 error therefore abandons its file:
-its handles are kept, never closed (``abandoned()`` tells the CLI to end with ``os._exit``).
+collection or at exit (reported to h5py, and closed there as a bug of the HDF5 library). A writer that meets any
+other HDF5 error therefore abandons its file: its handles are kept, never closed (``abandoned()`` tells the CLI
+to end with ``os._exit``).
 
 Crash safety: the header and static fields are written and the file closed before the first
 frame, so a run that dies before any frame leaves a clean file with zero frames. At the first
