@@ -173,3 +173,12 @@ def test_contact_sheet_tiles_with_captions(tmp_path):
         Image.new("RGB", (80, 60), (60 * k, 0, 0)).save(paths[-1])
     sheet = Image.open(contact_sheet(paths, ["a", "b", "c", "d"], tmp_path / "sheet.png", columns=3))
     assert sheet.size[0] == 3 * 80 and sheet.size[1] > 2 * 60
+
+
+def test_camera_without_a_direction_exit_2_and_no_frame(runs, monkeypatch, capsys, tmp_path):
+    """Position at the focus, or up along the view: refused before any frame is drawn (no blank PNG)."""
+    out = tmp_path / "pictures"
+    for camera in ("0.5,0.5,0.5;0.5,0.5,0.5", "0.5,1.5,0.5;0.5,0.5,0.5"):
+        code, err = pdmpm(monkeypatch, capsys, "render", runs["drop"], "--camera", camera, "--out", out)
+        assert code == 2 and f"--camera '{camera}': " in err and "Traceback" not in err and "Warning" not in err
+    assert not out.exists()
