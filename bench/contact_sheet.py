@@ -11,7 +11,9 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from pdmpm_cli.render import contact_sheet, parse_resolution, render_run
+from pdmpm_cli.render.options import parse_resolution
+from pdmpm_cli.render.run import render_run
+from pdmpm_cli.render.sheet import contact_sheet
 
 
 def main():

@@ -36,6 +36,7 @@ from pdmpm_cli import __version__
 from pdmpm_cli.engine.state import SCALARS, State
 from pdmpm_cli.errors import InputError
 from pdmpm_cli.io.atomic import atomic_path, fsync_file
+from pdmpm_cli.io.hdf5 import reserved_file
 from pdmpm_cli.io.vtk import frame_index
 
 FORMAT = "pdmpm-checkpoint"
@@ -101,8 +102,9 @@ def save(out: Path, frame: int, snap: tuple[dict, dict], head: dict[str, Any]) -
     folder.mkdir(exist_ok=True)
     path = folder / f"frame_{frame:05d}.h5"
     arrays, scalars = snap
+    size = sum(a.nbytes for a in arrays.values()) + 2 * len(json.dumps(head | scalars, default=str))
     with atomic_path(path) as tmp:
-        with h5py.File(tmp, "w", libver=("v110", "v110")) as f:  # dense attributes: scene_json may exceed 64 KiB
+        with reserved_file(tmp, size) as f:  # format 1.10, dense attributes: scene_json may exceed 64 KiB
             f.attrs.update(head | scalars | {"frame": frame})
             group = f.create_group("state")
             for name, array in arrays.items():

@@ -31,3 +31,10 @@ class SceneValueError(InputError):
 
     def __str__(self) -> str:
         return f"{'.'.join(map(str, self.key))}: {self.message}" if self.key else self.message
+
+
+class OutputError(PdmpmError):
+    """An output could not be written (a full disk, a file-size limit, no permission); what was written before
+    stays complete. Exit code 1."""
+
+    exit_code = 1

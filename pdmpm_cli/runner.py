@@ -10,7 +10,7 @@ from typing import Protocol
 
 import numpy as np
 
-from pdmpm_cli import checkpoint
+from pdmpm_cli import budget, checkpoint
 from pdmpm_cli.assemble import build_model
 from pdmpm_cli.discretize import Discretization, discretize
 from pdmpm_cli.engine.embedding import mesh_positions
@@ -19,6 +19,7 @@ from pdmpm_cli.engine.model import Model
 from pdmpm_cli.engine.plan import Plan
 from pdmpm_cli.engine.solver import Solver, initial_state
 from pdmpm_cli.engine.state import State
+from pdmpm_cli.engine.transfer import WALL
 from pdmpm_cli.errors import InputError, SceneValueError
 from pdmpm_cli.io.lock import LOCK_NAME, OutputLock
 from pdmpm_cli.plan import make_plan
@@ -68,7 +69,9 @@ def prepare_resume(out: Path, scene=None, overrides=(), variant: str | None = No
 
 
 def prepare_scene(scene: Scene, path: Path, text: str = "") -> Prepared:
-    """Discretise a validated scene (relative mesh paths resolve beside `path`) and make the Plan."""
+    """Discretise a validated scene (relative mesh paths resolve beside `path`) and make the Plan; a scene whose
+    estimated memory exceeds what the machine has free is refused before sampling."""
+    budget.check_memory(scene, Path(path).parent, str(path))
     disc = discretize(scene, Path(path).parent)
     model = build_model(scene, disc)
     return Prepared(Path(path), scene, text, disc, model, make_plan(scene, disc, model))
@@ -162,8 +165,9 @@ def _writers(prep: Prepared, out: Path, static: dict, keep: int) -> list:
     if scene.output.hdf5 and keep:
         writers.append(Hdf5RunWriter.reopen(out / "run.h5", keep))
     elif scene.output.hdf5:
-        # The plan carries the scene as validated (with --set and --variant applied) for readers such as render.
-        record = {**prep.plan.to_dict(), "scene": scene.model_dump(mode="json")}
+        # The plan carries the scene as validated (with --set and --variant applied) and the grid's wall layer for
+        # readers such as render.
+        record = {**prep.plan.to_dict(), "scene": scene.model_dump(mode="json"), "wall_cells": WALL}
         writers.append(Hdf5RunWriter(out / "run.h5", scene_text=prep.text, plan=json.loads(json.dumps(
             record, default=_jsonable)), static=static, compression=scene.output.compression))
     if scene.output.vtk:
@@ -216,6 +220,8 @@ def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwr
         meshes = prep.disc.meshes
         writers = _writers(prep, out, static_fields(model, meshes), first + 1 if resume else 0)
         every, head = scene.output.checkpoint_every, checkpoint.header(prep)
+        if resume is not None:  # the thread count the run started with, which identical frames need
+            head["threads"] = resume.attrs["threads"]
         if reporter:
             reporter.start(plan, first)
         on_substep = reporter.substep if reporter else None

@@ -7,6 +7,7 @@ Vec3 = tuple[float, float, float]
 
 
 class Strict(BaseModel):
-    """Immutable, unknown keys rejected."""
+    """Immutable, unknown keys rejected, every float finite (.inf and .nan are refused where they are written, not
+    met as a blow-up or an overflow later)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)

@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import h5py
 import numba
 import numpy as np
 import pytest
@@ -168,3 +169,107 @@ def test_second_run_into_a_folder_in_use_is_refused(scene, tmp_path, monkeypatch
     assert not (out / LOCK_NAME).exists()
     with OutputLock(out):  # released: it can be taken again
         pass
+
+
+def _child_env() -> dict:
+    return dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
+                NUMBA_NUM_THREADS=str(numba.get_num_threads()))  # the reference's thread count: identical sums
+
+
+def _file_size_limit(limit: int):
+    """For a child process: `ulimit -f` (Python ignores SIGXFSZ, so a write past it fails with EFBIG)."""
+    import resource
+
+    return lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+
+def test_full_disk_ends_the_run_with_exit_1_and_resume_matches(scene, reference, tmp_path):
+    """A file-size limit stands for a full disk: run.h5 cannot grow past about 1 MB (the checkpoints, 0.4 MB,
+    still fit). The run stops with exit 1 and a message naming run.h5 and the --resume command; the frames written
+    before stay readable, the file closes cleanly (no segmentation fault), and --resume without the limit finishes
+    with the frames of the uninterrupted run, bit for bit."""
+    out = tmp_path / "full"
+    sets = [a for item in LONG for a in ("--set", item)]
+    r = subprocess.run([sys.executable, "-m", "pdmpm_cli", "run", scene, "--out", out, "--quiet", *sets], cwd=ROOT,
+                       env=_child_env(), capture_output=True, text=True, timeout=300,
+                       preexec_fn=_file_size_limit(1_000_000))
+    assert r.returncode == 1, r.stderr
+    assert f"error: {out / 'run.h5'}: failed writing frame " in r.stderr
+    assert "cannot grow the file by" in r.stderr and "(file too large)" in r.stderr
+    assert f"the frames written before are complete and readable; once there is room, continue it with: pdmpm run " \
+           f"--resume {out}" in r.stderr and "Traceback" not in r.stderr
+    written = read_run(out / "run.h5")
+    assert 7 <= len(written) < 31
+    assert np.array_equal(written.field("particle_x"), read_run(reference / "run.h5").field("particle_x")[:len(written)])
+    with h5py.File(out / "run.h5", "r") as f:  # closed cleanly: a plain read-only open works (no SWMR flag left)
+        assert f.attrs["frames_complete"] == len(written)
+    assert latest(out).frame in range(len(written) - 3, len(written))
+    r = subprocess.run([sys.executable, "-m", "pdmpm_cli", "run", "--resume", out, "--quiet"], cwd=ROOT,
+                       env=_child_env(), capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert_same_frames(reference, out)
+
+
+def test_an_error_inside_hdf5_exits_1_without_a_crash(scene, tmp_path):
+    """With the reservation switched off, the file-size limit hits inside HDF5, whose state then cannot be closed
+    (closing crashed the process with SIGSEGV, exit 139): the writer abandons the file and the run exits 1."""
+    out = tmp_path / "hdf5"
+    code = ("import pdmpm_cli.io.hdf5 as h; h.reserve = lambda *a: None; "
+            "from pdmpm_cli.cli.app import main; main()")
+    sets = [a for item in LONG for a in ("--set", item)]
+    r = subprocess.run([sys.executable, "-c", code, "run", scene, "--out", out, "--quiet", *sets], cwd=ROOT,
+                       env=_child_env(), capture_output=True, text=True, timeout=300,
+                       preexec_fn=_file_size_limit(1_000_000))
+    assert r.returncode == 1, r.stderr
+    assert "file too large (inside HDF5: " in r.stderr and "run.h5 is left as HDF5 had it" in r.stderr
+    assert "start it again with --overwrite" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_sigterm_stops_like_ctrl_c(scene, tmp_path):
+    """SIGTERM (a batch system's stop) ends the run between two substeps: exit 143, the same message as Ctrl-C, the
+    frames and checkpoints kept, the folder's lock released."""
+    out = tmp_path / "term"
+    sets = [a for item in LONG for a in ("--set", item)]
+    proc = subprocess.Popen([sys.executable, "-m", "pdmpm_cli", "run", scene, "--out", out, "--quiet", *sets],
+                            cwd=ROOT, env=_child_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline and proc.poll() is None and not (out / "checkpoints").is_dir():
+            time.sleep(0.005)
+        assert proc.poll() is None, f"the run ended before it could be stopped: {proc.stderr.read()}"
+        proc.send_signal(signal.SIGTERM)
+        err = proc.communicate(timeout=120)[1]
+    finally:
+        proc.kill()
+    assert proc.returncode == 143, err
+    assert f"continue it with: pdmpm run --resume {out}\nterminated (SIGTERM): frames written so far are complete " \
+           f"and readable" in err and "Traceback" not in err
+    assert len(read_run(out / "run.h5")) >= 4 and latest(out).frame >= 3
+    assert not (out / LOCK_NAME).exists()
+
+
+def test_resume_into_a_folder_in_use_says_nothing_of_resuming(interrupted, tmp_path, monkeypatch, capsys):
+    out = copy_of(interrupted, tmp_path)
+    with OutputLock(out):
+        code, err = cli(monkeypatch, capsys, "run", "--resume", out, "--quiet")
+    assert code == 2 and "another pdmpm run is writing to this folder (pid" in err
+    assert "resuming" not in err
+
+
+def test_checkpoints_keep_the_thread_count_the_run_started_with(interrupted, tmp_path, monkeypatch, capsys):
+    """A resumed run writes the original run's thread count into its checkpoints, so a second resume warns with
+    the count an uninterrupted run had, not the last segment's."""
+    out = copy_of(interrupted, tmp_path)
+    with h5py.File(out / "checkpoints" / "frame_00006.h5", "r+") as f:
+        f.attrs["threads"] = 7  # as if the run had started with 7 threads
+    advance = Solver.advance
+
+    def stop(self, state, t_end, on_substep=None):
+        if t_end > 12.5 * self.plan.frame_dt:
+            raise KeyboardInterrupt
+        advance(self, state, t_end, on_substep)
+
+    monkeypatch.setattr(Solver, "advance", stop)
+    code, err = cli(monkeypatch, capsys, "run", "--resume", out, "--quiet")
+    assert code == 130 and "the run started with 7 Numba threads" in err
+    assert latest(out).frame == 12 and latest(out).attrs["threads"] == 7

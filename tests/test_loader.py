@@ -293,7 +293,7 @@ def test_malformed_overrides(tmp_path):
     with pytest.raises(SceneError) as info:
         parse_overrides(["sim.dt", "=3", "a..b=1", "ok=1"])
     assert str(info.value) == "\n".join(
-        f"--set: malformed override {item!r} (expected KEY=VALUE, e.g. --set bodies.0.material.E=2e5)"
+        f"--set: malformed override {item!r} (expected KEY=VALUE, e.g. --set bodies.0.material.mu=2e5)"
         for item in ("sim.dt", "=3", "a..b=1")
     )
     assert parse_overrides(["bodies.0.name=a=b", "x.y= [1, 2]"]) == [

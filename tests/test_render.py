@@ -85,27 +85,34 @@ def test_particle_frames_move_at_scene_resolution(runs, monkeypatch, capsys):
 
 
 def test_frames_slice_resolution_and_video(runs, monkeypatch, capsys, tmp_path):
-    """--frames 1::2 of 5 frames renders frames 1 and 3, at --resolution, into --out; then the video."""
+    """--frames 1::2 of 5 frames renders frames 1 and 3, at --resolution, into --out; the video goes there too and
+    the run folder's own video (of an earlier render) is left alone."""
+    (runs["drop"] / "animation.gif").write_bytes(b"earlier")
     out = tmp_path / "pictures"
     code, err = pdmpm(monkeypatch, capsys, "render", runs["drop"], "--frames", "1::2", "--resolution", "160x120",
                       "--out", out, "--fps", "5")
     assert code == 0, err
-    assert sorted(p.name for p in out.iterdir()) == ["frame_00001.png", "frame_00003.png"]
+    assert sorted(p.name for p in out.glob("*.png")) == ["frame_00001.png", "frame_00003.png"]
     assert Image.open(out / "frame_00001.png").size == (160, 120)
     if importlib.util.find_spec("imageio") and importlib.util.find_spec("imageio_ffmpeg"):
-        assert (runs["drop"] / "animation.mp4").stat().st_size > 0
+        assert (out / "animation.mp4").stat().st_size > 0
     else:
-        assert Image.open(runs["drop"] / "animation.gif").n_frames == 2
+        assert Image.open(out / "animation.gif").n_frames == 2
+    assert (runs["drop"] / "animation.gif").read_bytes() == b"earlier"
+    assert not (runs["drop"] / "animation.mp4").exists()
 
 
 def test_shell_renders_its_surface(runs):
     """A cloth is drawn as its smooth-shaded surface mesh, not as particles."""
-    from pdmpm_cli.render import _layers, field_values, open_run, render_run
+    from pdmpm_cli.render.fields import field_values
+    from pdmpm_cli.render.run import render_run
+    from pdmpm_cli.render.scene import body_layers
+    from pdmpm_cli.render.source import open_run
 
     source = open_run(runs["cloth"])
     assert len(source.meshes) == 1 and not source.meshes[0].is_cells
     frame = source.read(-1)
-    surface = _layers(source)[0].build(frame, field_values(source, "speed", frame))
+    surface = body_layers(source)[0].build(frame, field_values(source, "speed", frame))
     assert surface.n_cells == len(source.meshes[0].faces) // 4 and "Normals" in surface.point_data
     result = render_run(runs["cloth"], frames="-1", resolution=(320, 240), video=False)
     assert coloured_fraction(result.images[0]) > 0.02
@@ -113,7 +120,10 @@ def test_shell_renders_its_surface(runs):
 
 def test_voronoi_renders_cell_polyhedra(runs):
     """Voronoi cells are solid polyhedra coloured per cell, also when only the VTK and PLY files are left."""
-    from pdmpm_cli.render import _layers, field_values, open_run, render_run
+    from pdmpm_cli.render.fields import field_values
+    from pdmpm_cli.render.run import render_run
+    from pdmpm_cli.render.scene import body_layers
+    from pdmpm_cli.render.source import open_run
 
     vtk_only = runs["voronoi"].parent / "voronoi_vtk"
     for sub in ("vtk", "meshes"):
@@ -123,7 +133,7 @@ def test_voronoi_renders_cell_polyhedra(runs):
         assert [m.is_cells for m in source.meshes] == [True]
         assert len(np.unique(source.meshes[0].owner)) == 30  # every cell owns its faces
         frame = source.read(-1)
-        cells = _layers(source)[0].build(frame, field_values(source, "damage", frame))
+        cells = body_layers(source)[0].build(frame, field_values(source, "damage", frame))
         assert len(cells.cell_data["value"]) == cells.n_cells > 30 * 4
     result = render_run(vtk_only, field="damage", frames="-1", resolution=(320, 240), video=False)
     assert coloured_fraction(result.images[0]) > 0.01
@@ -131,7 +141,9 @@ def test_voronoi_renders_cell_polyhedra(runs):
 
 def test_fluid_renders_a_surface(runs):
     """A viscoelastic body becomes one closed surface enclosing about its particles' volume."""
-    from pdmpm_cli.render import fluid_surface, open_run, render_run
+    from pdmpm_cli.render.run import render_run
+    from pdmpm_cli.render.scene import fluid_surface
+    from pdmpm_cli.render.source import open_run
 
     source = open_run(runs["honey"])
     surface = fluid_surface(source.read(-1).x, source.particle_volume, source.bodies[0].spacing)
@@ -153,7 +165,7 @@ def test_missing_outdir_exit_2(tmp_path, monkeypatch, capsys):
 
 
 def test_contact_sheet_tiles_with_captions(tmp_path):
-    from pdmpm_cli.render import contact_sheet
+    from pdmpm_cli.render.sheet import contact_sheet
 
     paths = []
     for k in range(4):
@@ -161,3 +173,12 @@ def test_contact_sheet_tiles_with_captions(tmp_path):
         Image.new("RGB", (80, 60), (60 * k, 0, 0)).save(paths[-1])
     sheet = Image.open(contact_sheet(paths, ["a", "b", "c", "d"], tmp_path / "sheet.png", columns=3))
     assert sheet.size[0] == 3 * 80 and sheet.size[1] > 2 * 60
+
+
+def test_camera_without_a_direction_exit_2_and_no_frame(runs, monkeypatch, capsys, tmp_path):
+    """Position at the focus, or up along the view: refused before any frame is drawn (no blank PNG)."""
+    out = tmp_path / "pictures"
+    for camera in ("0.5,0.5,0.5;0.5,0.5,0.5", "0.5,1.5,0.5;0.5,0.5,0.5"):
+        code, err = pdmpm(monkeypatch, capsys, "render", runs["drop"], "--camera", camera, "--out", out)
+        assert code == 2 and f"--camera '{camera}': " in err and "Traceback" not in err and "Warning" not in err
+    assert not out.exists()

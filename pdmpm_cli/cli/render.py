@@ -23,7 +23,8 @@ class RichBar:
         self.progress.update(self.task, completed=done)
 
     def stop(self):
-        self.progress.stop()
+        if self.task is not None:
+            self.progress.stop()
 
 
 def render(
@@ -45,13 +46,15 @@ def render(
         "--fps", min=0.1, help="Frames per second of the video (default: the run's frame rate).",
         show_default=False)] = None,
     out: Annotated[Path | None, typer.Option(
-        "--out", "-o", help="Folder for the PNG frames (default OUTDIR/frames).", show_default=False)] = None,
+        "--out", "-o", help="Folder for the PNG frames and the video (default: frames in OUTDIR/frames, the video in "
+        "OUTDIR).", show_default=False)] = None,
     no_video: Annotated[bool, typer.Option("--no-video", help="Write only the PNG frames.")] = False,
 ):
     """Render OUTDIR's frames to OUTDIR/frames/frame_NNNNN.png and OUTDIR/animation.mp4 (or .gif without ffmpeg)."""
-    from pdmpm_cli.render import parse_camera, parse_resolution, render_run
+    from pdmpm_cli.render.options import parse_camera, parse_resolution
+    from pdmpm_cli.render.run import render_run
 
-    console = Console(stderr=True, highlight=False, soft_wrap=True)
+    console = Console(stderr=True, highlight=False, emoji=False, soft_wrap=True)
     size = parse_resolution(resolution) if resolution else None
     view = parse_camera(camera) if camera else None
     bar = RichBar(console)

@@ -7,8 +7,10 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from pdmpm_cli.cli import signals
 from pdmpm_cli.cli.options import SetOpt, VariantOpt
 
 
@@ -17,7 +19,23 @@ class Backend(str, Enum):
     cuda = "cuda"
 
 
-class RichReporter:
+class QuietReporter:
+    """No output; a Ctrl-C or SIGTERM stops the run between two substeps (pdmpm_cli.cli.signals)."""
+
+    def start(self, plan, frame):
+        pass
+
+    def substep(self, state, dt):
+        signals.check()
+
+    def frame(self, index, state):
+        pass
+
+    def stop(self):
+        pass
+
+
+class RichReporter(QuietReporter):
     """Progress bar: frames done, substeps, simulated time, ETA."""
 
     def __init__(self, console: Console):
@@ -33,6 +51,7 @@ class RichReporter:
         self.progress.start()
 
     def substep(self, state, dt):
+        signals.check()
         now = time.monotonic()
         if now - self.last > 0.25:
             self.last = now
@@ -66,30 +85,43 @@ def run(
     --resume OUTDIR continues a killed run from its newest checkpoint."""
     import numba
 
-    from pdmpm_cli.errors import InputError
-    from pdmpm_cli.runner import prepare, prepare_resume, simulate
+    from pdmpm_cli.errors import InputError, OutputError
+    from pdmpm_cli.io.lock import check_folder, check_free
+    from pdmpm_cli.scene.loader import load_scene
+    from pdmpm_cli.scene.schema import Scene
 
-    console = Console(stderr=True, highlight=False, soft_wrap=True)
+    console = Console(stderr=True, highlight=False, emoji=False, soft_wrap=True)
     overrides = [*set_, f"simulation.backend={backend.value}"] if backend else set_
-    ckpt = None
     if resume is not None:
         if overwrite or (out is not None and out.resolve() != resume.resolve()):
             raise InputError("--resume continues the run in its own folder: leave out --overwrite and --out")
         if scene is None and (overrides or variant):
             raise InputError("--set, --variant and --backend apply to a SCENE: with --resume give the scene file too, "
                              "or leave them out to use the run's own")
-        prep, ckpt = prepare_resume(resume, scene, overrides, variant)
         out = resume
     elif scene is None:
         raise InputError("missing SCENE: give a scene file (pdmpm run scene.yaml), or --resume OUTDIR")
     else:
-        prep = prepare(scene, overrides, variant)
         out = out or Path("outputs") / (scene.stem if variant is None else f"{scene.stem}-{variant}")
-    for w in prep.plan.warnings():
-        console.print(f"[yellow]warning:[/] {w}")
+    check_folder(out)
+    if scene is not None:
+        load_scene(scene, Scene, overrides, variant)  # bad input is refused before the engine loads
+
+    from pdmpm_cli import budget
+    from pdmpm_cli.runner import prepare, prepare_resume, simulate
+
+    ckpt = None
+    if resume is not None:
+        check_free(out)  # a run writing there now is named before anything about resuming is said
+        prep, ckpt = prepare_resume(resume, scene, overrides, variant)
+    else:
+        prep = prepare(scene, overrides, variant)
     plan = prep.plan
-    console.print(f"{prep.scene.name}: {plan.particles} particles, {plan.bonds} bonds, {plan.frames} frames, "
-                  f"dt <= {plan.dt_max:.3g} s on {plan.backend} -> {out}")
+    for w in [*plan.warnings(), *budget.warnings(prep)]:
+        console.print(f"[yellow]warning:[/] {escape(w)}")
+    budget.check_output(prep, out, plan.frames - (ckpt.frame if ckpt else -1), reclaim=overwrite)
+    console.print(f"{escape(prep.scene.name)}: {plan.particles} particles, {plan.bonds} bonds, {plan.frames} frames, "
+                  f"dt <= {plan.dt_max:.3g} s on {plan.backend} -> {escape(str(out))}")
     if ckpt is not None:
         console.print(f"resuming from frame {ckpt.frame} (t = {ckpt.attrs['state_time']:.6g} s, "
                       f"step {ckpt.attrs['state_step']}); frames after it are written again")
@@ -97,19 +129,28 @@ def run(
             console.print(f"[yellow]warning:[/] the run started with {ckpt.attrs['threads']} Numba threads, this one "
                           f"has {numba.get_num_threads()}: the frames will differ from an uninterrupted run in the "
                           f"last bits (set NUMBA_NUM_THREADS={ckpt.attrs['threads']} for identical ones)")
-    reporter = None if quiet else RichReporter(console)
+    reporter = QuietReporter() if quiet else RichReporter(console)
     first_step = ckpt.attrs["state_step"] if ckpt else 0
     t0 = time.perf_counter()
     try:
-        state = simulate(prep, out, reporter, overwrite=overwrite, resume=ckpt)
+        with signals.polling():
+            state = simulate(prep, out, reporter, overwrite=overwrite, resume=ckpt)
     except KeyboardInterrupt:
         if (out / "checkpoints").is_dir():
-            console.print(f"continue it with: pdmpm run --resume {out}")
+            console.print(f"continue it with: pdmpm run --resume {escape(str(out))}")
         raise
+    except OutputError as error:
+        from pdmpm_cli.io.hdf5 import abandoned
+
+        kept = ("run.h5 is left as HDF5 had it and may not open" if abandoned() else
+                "the frames written before are complete and readable")
+        resumable = (out / "checkpoints").is_dir() and not abandoned()
+        then = (f"once there is room, continue it with: pdmpm run --resume {out}" if resumable
+                else "once there is room, start it again with --overwrite")
+        raise OutputError(f"{error}; {kept}; {then}") from error
     finally:
-        if reporter:
-            reporter.stop()
+        reporter.stop()
     wall = time.perf_counter() - t0
     steps = state.step - first_step
     console.print(f"done: {steps} steps in {wall:.1f} s "
-                  f"({plan.particles * steps / wall / 1e6:.2f} M particle-steps/s); outputs in {out}")
+                  f"({plan.particles * steps / wall / 1e6:.2f} M particle-steps/s); outputs in {escape(str(out))}")

@@ -31,7 +31,7 @@ def scenes(
     from pdmpm_cli.scene.loader import load_scene
     from pdmpm_cli.scene.schema import Scene
 
-    console = Console(highlight=False, soft_wrap=True)
+    console = Console(highlight=False, emoji=False, soft_wrap=True)
     table = Table(box=None, pad_edge=False)
     for column in ("scene", "shows", "bodies", "variants"):
         table.add_column(column)

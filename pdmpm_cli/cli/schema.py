@@ -17,6 +17,10 @@ def schema(
     if output is None:
         typer.echo(text)
     else:
+        from pdmpm_cli.errors import OutputError
         from pdmpm_cli.io.atomic import atomic_write_text
 
-        atomic_write_text(output, text + "\n")
+        try:
+            atomic_write_text(output, text + "\n")
+        except OSError as error:
+            raise OutputError(f"{output}: cannot write the schema ({error.strerror})") from None

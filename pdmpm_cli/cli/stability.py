@@ -58,7 +58,7 @@ def stability(
     Exit code 1 if any automatic-step case is unstable."""
     from pdmpm_cli import stability as st
 
-    console = Console(stderr=True, highlight=False, soft_wrap=True)
+    console = Console(stderr=True, highlight=False, emoji=False, soft_wrap=True)
     chosen = st.select(case, quick)
     if list_:
         table = Table(title=f"{len(chosen)} stability cases")
@@ -66,7 +66,7 @@ def stability(
             table.add_column(column)
         for c in chosen:
             table.add_row(escape(c.name), c.category, escape(c.parameter), escape(c.probes))
-        Console(highlight=False).print(table)
+        Console(highlight=False, emoji=False).print(table)
         return
     rows = []
     for c in chosen:
@@ -83,7 +83,7 @@ def stability(
     for row in rows:
         colour = COLOUR.get(row["class"], "red")
         table.add_row(*(f"[{colour}]{fmt(row.get(k))}[/]" if k == "class" else escape(fmt(row.get(k))) for k in shown))
-    Console(highlight=False).print(table)
+    Console(highlight=False, emoji=False).print(table)
     write_tables(out / "stability", COLUMNS, rows)
     counts = {}
     for row in rows:
@@ -111,7 +111,7 @@ def stability(
                 table.add_column(column, overflow="fold")
             for r in results:
                 table.add_row(*(escape(fmt(r[k])) for k in THRESHOLD_COLUMNS))
-            Console(highlight=False).print(table)
+            Console(highlight=False, emoji=False).print(table)
             write_tables(out / "thresholds", THRESHOLD_COLUMNS, results)
             off = [r["case"] for r in results if not r["within_2x"]]
             console.print(f"thresholds -> {out / 'thresholds.csv'}"

@@ -43,7 +43,7 @@ def study(
     from pdmpm_cli.study.ladder import plot, problem_study, scene_study, write_csv
     from pdmpm_cli.study.problems import PROBLEMS
 
-    console = Console(stderr=True, highlight=False, soft_wrap=True)
+    console = Console(stderr=True, highlight=False, emoji=False, soft_wrap=True)
 
     def show(run):
         err = "pending" if math.isnan(run.error) else f"{run.error:.4g}"
@@ -72,8 +72,8 @@ def study(
         table.add_row(f"{r.ladder} {r.level}", f"{r.cell_size_m:.4g}", str(r.particles), str(r.steps),
                       f"{r.dt_s:.3g}", f"{r.wall_s:.2f}", f"{r.value:.5g}",
                       "reference" if math.isnan(r.error) else f"{r.error:.3g}")
-    Console(highlight=False).print(table)
+    Console(highlight=False, emoji=False).print(table)
     for name, (slope, n) in result.slopes().items():
         fit = f"{slope:.2f} (least squares over {n} runs)" if n >= 2 else f"needs 2 runs with an error, has {n}"
-        Console(highlight=False).print(f"{name}: {fit}")
+        Console(highlight=False, emoji=False).print(f"{name}: {fit}")
     console.print(f"wrote {csv_path}, {png_path}")

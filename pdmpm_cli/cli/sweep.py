@@ -39,7 +39,7 @@ def sweep(
     from pdmpm_cli.errors import InputError
     from pdmpm_cli.sweep import connect, expand, run_sweep, summary_rows, write_summary
 
-    console = Console(stderr=True, highlight=False, soft_wrap=True)
+    console = Console(stderr=True, highlight=False, emoji=False, soft_wrap=True)
     variants = expand(scene, param, variant, set_)
     base = out / scene.stem
     used = [v.name for v in variants if (base / v.name).is_dir() and any((base / v.name).iterdir())]
@@ -70,7 +70,7 @@ def sweep(
         table.add_column(escape(header[i]), overflow="fold")
     for row in cells:
         table.add_row(*(escape(row[i]) for i in shown))
-    Console(highlight=False).print(table)
+    Console(highlight=False, emoji=False).print(table)
     failed = sum(row["status"] != "ok" for row in rows.values())
     console.print(f"summary: {csv_path}, {md_path}" + (f"; [red]{failed} failed[/]" if failed else ""))
     if failed:

@@ -19,19 +19,26 @@ def validate(
         "--limits", help="Also predict the largest stable step (linear stability of the grid and crack-particle "
         "operators at the start; costs tens of force evaluations).")] = False,
 ):
-    """Validate a scene file: schema, geometry and bonds. Exit code 2 on any problem."""
+    """Validate a scene file: schema, geometry, bonds, memory and output size. Exit code 2 on any problem."""
+    from pdmpm_cli.scene.loader import load_scene
+    from pdmpm_cli.scene.schema import Scene
+
+    load_scene(scene, Scene, set_, variant)  # bad input is refused before the engine loads
+
+    from pdmpm_cli.budget import gib, output_bytes, warnings
     from pdmpm_cli.runner import prepare
 
-    console = Console(highlight=False, soft_wrap=True)
+    console = Console(highlight=False, emoji=False, soft_wrap=True)
     prep = prepare(scene, set_, variant)
     if prep.scene.output.usd:
         from pdmpm_cli.io.usd import require
 
         require()
     plan = prep.plan
-    for w in plan.warnings():
-        console.print(f"[yellow]warning:[/] {w}")
-    console.print(f"{scene}: OK ({plan.particles} particles, {plan.bonds} bonds, {plan.frames} frames)")
+    for w in [*plan.warnings(), *warnings(prep)]:
+        console.print(f"[yellow]warning:[/] {escape(w)}")
+    console.print(f"{escape(str(scene))}: OK ({plan.particles} particles, {plan.bonds} bonds, {plan.frames} frames; "
+                  f"arrays {gib(plan.memory_bytes)}, output about {gib(output_bytes(prep))})")
     if explain:
         print_plan(console, plan)
     if limits:

@@ -31,6 +31,14 @@ Only the first ``frames_complete`` frames are valid: the writer fills every fiel
 ``frames/time`` first, then bumps ``frames_complete`` and flushes, so a frame is either counted
 and fully on disk or not counted. The reader also clamps to the shortest frame dataset.
 
+Full disks: every write first reserves its bytes (``posix_fallocate``) past the file's current end, so a full
+disk or a file-size limit (``ulimit -f``) fails there, before HDF5 has written anything of the frame, and the
+file closes cleanly with its complete frames. A failed write inside HDF5 cannot be recovered in-process: the
+library's close then frees memory twice, and the process dies with a segmentation fault at the next garbage
+collection or at exit (reported to h5py, and closed there as a bug of the HDF5 library). A writer that meets any
+other HDF5 error therefore abandons its file: its handles are kept, never closed (``abandoned()`` tells the CLI
+to end with ``os._exit``).
+
 Crash safety: the header and static fields are written and the file closed before the first
 frame, so a run that dies before any frame leaves a clean file with zero frames. At the first
 frame the file is reopened, the frame datasets are created, and the file is switched to HDF5
@@ -46,8 +54,11 @@ fsynced: a power loss may still lose the most recent frames. Files use the HDF5 
 
 from __future__ import annotations
 
+import errno
 import json
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from datetime import datetime, timezone
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -57,7 +68,7 @@ import h5py
 import numpy as np
 
 from pdmpm_cli import __version__
-from pdmpm_cli.errors import InputError
+from pdmpm_cli.errors import InputError, OutputError, PdmpmError
 from pdmpm_cli.io.atomic import atomic_path
 
 FORMAT = "pdmpm-run"
@@ -67,6 +78,10 @@ COMPRESSIONS = ("none", "lzf", "gzip")
 _LIBVER = ("v110", "v110")  # lowest format that supports SWMR; readable by HDF5 >= 1.10
 _SMALL_CHUNK_BYTES = 64 * 1024  # below this, several frames share a chunk (scalar histories)
 _MAX_CHUNK_BYTES = 1 << 30  # HDF5 caps chunks at 4 GiB; stay well under it
+_RESERVE_SLACK = 256 * 1024  # metadata one frame may add: object headers, chunk-index blocks, free-space info
+_INDEX_BYTES = 32  # per dataset and frame so far: a chunk index grows by blocks as large as what it holds
+_UNSUPPORTED = (errno.EOPNOTSUPP, errno.ENOSYS, errno.ENODEV, errno.ESPIPE)  # no fallocate: write unreserved
+_ABANDONED: list = []  # h5py objects of files whose HDF5 state broke: kept alive, never closed
 _HINT = "pass the run.h5 written by `pdmpm run`"
 _CORRUPT_HINT = "the file is truncated or corrupt; re-run the simulation to regenerate it"
 
@@ -102,6 +117,57 @@ def _frame_chunks(shape: tuple[int, ...], itemsize: int) -> tuple[int, ...]:
     return (1, *dims)
 
 
+def reserve(path: str | os.PathLike[str], end: int, nbytes: int) -> None:
+    """Allocate bytes [end, end + nbytes) of the file at `path` on disk; OutputError when the disk, a quota or the
+    file-size limit cannot hold them. HDF5 then writes into space that is already the file's (it truncates the
+    file to its own end when it closes)."""
+    fd = os.open(path, os.O_WRONLY)
+    try:
+        os.posix_fallocate(fd, end, max(nbytes, 1))
+    except OSError as error:
+        if error.errno not in _UNSUPPORTED:
+            raise OutputError(f"{path}: cannot grow the file by {nbytes / 2**20:.3g} MiB "
+                              f"({os.strerror(error.errno).lower()})") from None
+    finally:
+        os.close(fd)
+
+
+def trim(path: str | os.PathLike[str]) -> None:
+    """Give back what a closed file holds past the end its superblock records (the unused part of the last
+    reservation). Superblock versions 2 and 3 (HDF5 1.8+ formats) keep the base and end-of-file addresses at
+    bytes 12 and 28; a file of another layout is left as it is."""
+    with open(path, "r+b") as f:
+        head = f.read(36)
+        if len(head) < 36 or head[:8] != b"\x89HDF\r\n\x1a\n" or head[8] not in (2, 3) or head[9] != 8:
+            return
+        end = int.from_bytes(head[12:20], "little") + int.from_bytes(head[28:36], "little")
+        if 0 < end < os.fstat(f.fileno()).st_size:
+            f.truncate(end)
+
+
+@contextmanager
+def reserved_file(path: str | os.PathLike[str], nbytes: int) -> Iterator[h5py.File]:
+    """A new HDF5 file (format 1.10) at `path` whose `nbytes` (plus metadata slack) are reserved on disk before
+    anything is written; trimmed to its content once closed. An error from inside HDF5 abandons the file."""
+    f = h5py.File(path, "w", libver=_LIBVER)
+    try:
+        reserve(path, 0, nbytes + _RESERVE_SLACK)
+        yield f
+    except PdmpmError:
+        f.close()
+        raise
+    except BaseException:
+        _ABANDONED.append(f)
+        raise
+    f.close()
+    trim(path)
+
+
+def abandoned() -> bool:
+    """Whether a writer gave up a file after an HDF5 error (the process must then end without closing it)."""
+    return bool(_ABANDONED)
+
+
 class Hdf5RunWriter:
     """Appends frames to one ``run.h5``; every frame counted in ``frames_complete`` survives a crash."""
 
@@ -124,7 +190,8 @@ class Hdf5RunWriter:
         self._shapes: dict[str, tuple[int, ...]] = {}
         self._n_frames = 0
         # Closed again right away: until the first frame the file is a clean, readable run with 0 frames.
-        with h5py.File(self.path, "w", libver=_LIBVER) as f:
+        need = sum(np.asarray(v).nbytes for v in static.values()) + 4 * (len(scene_text) + len(json.dumps(plan)))
+        with reserved_file(self.path, need) as f:
             self._write_header(f, scene_text, plan, static)
 
     @classmethod
@@ -140,15 +207,14 @@ class Hdf5RunWriter:
         if len(run) < frames:
             raise InputError(f"{path}: holds {len(run)} complete frames, but the checkpoint needs {frames}; "
                              f"{_CORRUPT_HINT}")
-        with _open(path) as src, atomic_path(path) as tmp:
+        with _open(path) as src, atomic_path(path) as tmp, reserved_file(tmp, os.path.getsize(path)) as dst:
             try:
-                with h5py.File(tmp, "w", libver=_LIBVER) as dst:
-                    dst.attrs.update(src.attrs)
-                    dst.attrs["frames_complete"] = np.int64(frames)
-                    for name in src:
-                        src.copy(src[name], dst, name)
-                    for dataset in dst["frames"].values():
-                        dataset.resize(frames, axis=0)
+                dst.attrs.update(src.attrs)
+                dst.attrs["frames_complete"] = np.int64(frames)
+                for name in src:
+                    src.copy(src[name], dst, name)
+                for dataset in dst["frames"].values():
+                    dataset.resize(frames, axis=0)
             except (OSError, KeyError, ValueError) as error:
                 raise _corrupt(path, error) from error
         writer = cls.__new__(cls)
@@ -204,8 +270,8 @@ class Hdf5RunWriter:
                 self._shapes[name] = array.shape
             f.swmr_mode = True
         except BaseException:
+            _ABANDONED.extend([f, *self._frames.values()])
             self._frames.clear()
-            f.close()
             raise
         return f
 
@@ -219,6 +285,7 @@ class Hdf5RunWriter:
         if self._file is None:
             if "time" in arrays:
                 raise ValueError("field name 'time' is reserved for frame times; use <location>_<quantity>")
+            reserve(self.path, os.path.getsize(self.path), self._frame_reserve(arrays, 0))
             self._file = self._open_for_frames(arrays)
         elif arrays.keys() != self._frames.keys():
             raise ValueError(
@@ -230,16 +297,33 @@ class Hdf5RunWriter:
                     f"frame {index}: field {name!r} has shape {array.shape}, expected {self._shapes[name]}"
                 )
         n = index + 1
-        for name, array in arrays.items():
-            dataset = self._frames[name]
-            dataset.resize(n, axis=0)
-            dataset[index] = array
-        times = self._file["frames/time"]
-        times.resize(n, axis=0)
-        times[index] = time
-        self._file.attrs["frames_complete"] = np.int64(n)
-        self._file.flush()
+        reserve(self.path, self._file.id.get_filesize(), self._frame_reserve(arrays, index))
+        try:
+            for name, array in arrays.items():
+                dataset = self._frames[name]
+                dataset.resize(n, axis=0)
+                dataset[index] = array
+            times = self._file["frames/time"]
+            times.resize(n, axis=0)
+            times[index] = time
+            self._file.attrs["frames_complete"] = np.int64(n)
+            self._file.flush()
+        except BaseException:
+            self._abandon()
+            raise
         self._n_frames = n
+
+    def _frame_reserve(self, arrays: dict[str, np.ndarray], frames: int) -> int:
+        """Bytes one frame may add to the file: a whole chunk per field (small fields rewrite a chunk shared by
+        several frames; compression may not shrink it), their index entries and the metadata slack."""
+        chunks = [int(np.prod(_frame_chunks(a.shape, a.itemsize), dtype=np.int64)) * a.itemsize
+                  for a in arrays.values()]
+        return int(1.01 * sum(chunks)) + 8 * 1024 + (len(chunks) + 1) * _INDEX_BYTES * (frames + 1) + _RESERVE_SLACK
+
+    def _abandon(self) -> None:
+        """Give up the file after an error inside HDF5: keep its handles alive and never close them."""
+        _ABANDONED.extend([self._file, *self._frames.values()])
+        self._file, self._frames, self._closed = None, {}, True
 
     def close(self) -> None:
         """Close the file (every written frame is already flushed); safe to call twice."""
@@ -247,6 +331,7 @@ class Hdf5RunWriter:
         if self._file is not None:
             file, self._file = self._file, None
             file.close()
+            trim(self.path)
 
     def __enter__(self) -> Hdf5RunWriter:
         return self

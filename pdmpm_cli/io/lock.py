@@ -20,6 +20,41 @@ from pdmpm_cli.errors import InputError
 LOCK_NAME = ".pdmpm.lock"
 
 
+def check_folder(folder: str | os.PathLike[str]) -> None:
+    """InputError unless `folder` is a folder this process may write in, or one it can make: not a file, not under
+    a file, not in a folder without write permission (as root, permissions do not stop writes)."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{folder}: is a file, not a folder; give a folder for the outputs with --out")
+    parent = folder.absolute()
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise InputError(f"{folder}: {parent} is a file, so no folder can be made in it; choose another --out")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{folder}: no permission to write in {parent}; choose another --out, or allow writing "
+                         f"there (chmod u+w)")
+
+
+def check_free(folder: str | os.PathLike[str]) -> None:
+    """InputError if a run holds `folder` now (a probe: the lock is released at once)."""
+    try:
+        fd = os.open(Path(folder) / LOCK_NAME, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise _busy(Path(folder), os.read(fd, 4096).decode("utf-8", "replace")) from None
+    finally:
+        os.close(fd)
+
+
+def _busy(folder: Path, holder: str) -> InputError:
+    return InputError(f"{folder}: another pdmpm run is writing to this folder ({_describe(holder)}); wait for it to "
+                      f"finish or stop it, or choose another folder with --out")
+
+
 class OutputLock:
     """Exclusive use of an output folder (created if missing); a context manager."""
 
@@ -29,7 +64,15 @@ class OutputLock:
         self._fd: int | None = None
 
     def acquire(self) -> None:
-        self.folder.mkdir(parents=True, exist_ok=True)
+        check_folder(self.folder)
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            self._lock()
+        except OSError as error:
+            raise InputError(f"{self.folder}: cannot write in this folder ({error.strerror}); choose another "
+                             f"--out") from None
+
+    def _lock(self) -> None:
         while True:
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
             try:
@@ -37,8 +80,7 @@ class OutputLock:
             except BlockingIOError:
                 holder = os.read(fd, 4096).decode("utf-8", "replace")
                 os.close(fd)
-                raise InputError(f"{self.folder}: another pdmpm run is writing to this folder ({_describe(holder)}); "
-                                 f"wait for it to finish or stop it, or choose another folder with --out") from None
+                raise _busy(self.folder, holder) from None
             try:
                 same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
             except FileNotFoundError:
@@ -46,11 +88,15 @@ class OutputLock:
             if same:
                 break
             os.close(fd)  # the previous holder removed the file we opened: lock the new one
+        self._fd = fd
         holder = {"pid": os.getpid(), "host": socket.gethostname(),
                   "started": datetime.now(timezone.utc).isoformat(timespec="seconds")}
-        os.ftruncate(fd, 0)
-        os.write(fd, json.dumps(holder).encode("utf-8"))
-        self._fd = fd
+        try:
+            os.ftruncate(fd, 0)
+            os.write(fd, json.dumps(holder).encode("utf-8"))
+        except OSError:
+            self.release()
+            raise
 
     def release(self) -> None:
         if self._fd is not None:

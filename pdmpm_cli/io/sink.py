@@ -10,13 +10,14 @@ the same order. A writer failure is raised in the simulation thread on the next 
 from __future__ import annotations
 
 import queue
+import re
 import threading
 from collections.abc import Callable, Sequence
 from typing import Protocol
 
 import numpy as np
 
-from pdmpm_cli.errors import PdmpmError
+from pdmpm_cli.errors import OutputError, PdmpmError
 
 _QUEUE_SIZE = 2
 _STOP = None
@@ -36,7 +37,7 @@ def check_order(path, closed: bool, last_index: int, index: int) -> None:
         raise ValueError(f"frame index {index} out of order: the last frame written was {last_index}")
 
 
-class FrameWriteError(PdmpmError):
+class FrameWriteError(OutputError):
     """Writing or closing an output failed; the original exception is the ``__cause__``."""
 
     exit_code = 1
@@ -44,7 +45,19 @@ class FrameWriteError(PdmpmError):
 
 def _describe(writer: FrameWriter) -> str:
     path = getattr(writer, "path", None)
-    return type(writer).__name__ + (f" ({path})" if path is not None else "")
+    return f"{path}:" if path is not None else type(writer).__name__
+
+
+def _reason(exc: BaseException) -> str:
+    """What went wrong, in words: our own message, or an OSError's message and file."""
+    if isinstance(exc, PdmpmError):
+        return str(exc)
+    if isinstance(exc, OSError) and exc.strerror:
+        return f"{exc.strerror}: {exc.filename}" if exc.filename else exc.strerror
+    found = re.search(r"error message = '([^']*)'", str(exc))  # HDF5's report of a failed system call
+    if found:
+        return f"{found[1].lower()} (inside HDF5: {str(exc).split(' (')[0]})"
+    return f"{type(exc).__name__}: {exc}"
 
 
 class FrameSink:
@@ -68,7 +81,7 @@ class FrameSink:
                 try:
                     job()
                 except BaseException as exc:
-                    self._error = FrameWriteError(f"{what} failed: {type(exc).__name__}: {exc}")
+                    self._error = FrameWriteError(f"{what} failed: {_reason(exc)}")
                     self._error.__cause__ = exc
                 continue
             index, time, fields = item
@@ -76,9 +89,8 @@ class FrameSink:
                 try:
                     writer.write_frame(index, time, fields)
                 except BaseException as exc:
-                    self._error = FrameWriteError(
-                        f"{_describe(writer)} failed writing frame {index}: {type(exc).__name__}: {exc}"
-                    )
+                    reason = _reason(exc).removeprefix(f"{getattr(writer, 'path', None)}: ")
+                    self._error = FrameWriteError(f"{_describe(writer)} failed writing frame {index}: {reason}")
                     self._error.__cause__ = exc
                     break
 
@@ -117,7 +129,7 @@ class FrameSink:
                 writer.close()
             except BaseException as exc:
                 if close_error is None:
-                    close_error = FrameWriteError(f"{_describe(writer)} failed to close: {type(exc).__name__}: {exc}")
+                    close_error = FrameWriteError(f"{_describe(writer)} failed to close: {_reason(exc)}")
                     close_error.__cause__ = exc
         self._raise_pending()
         if close_error is not None:

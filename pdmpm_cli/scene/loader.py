@@ -1,6 +1,9 @@
 """Load a YAML scene file into a pydantic model, reporting every problem as `file:line:col key: message`.
 
 Generic over the model class: all knowledge of the schema comes from pydantic's errors and `model_fields`.
+The work is bounded before it can grow: files over MAX_BYTES are refused unread, the composer counts nodes
+and nesting (MAX_NODES, MAX_DEPTH), building the data counts every alias expansion against the same node
+budget (a "billion laughs" file stops at the first alias past it), and at most MAX_SHOWN problems are printed.
 """
 
 from __future__ import annotations
@@ -13,16 +16,23 @@ import re
 import types
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar, Union, get_args, get_origin
 
 import yaml
 from pydantic import BaseModel, ValidationError
+from yaml.composer import Composer
+from yaml.constructor import SafeConstructor
+from yaml.resolver import Resolver
 
 from pdmpm_cli.errors import InputError
 
 OVERRIDE = "--set"
-_SET_FORM = "expected KEY=VALUE, e.g. --set bodies.0.material.E=2e5"
+_SET_FORM = "expected KEY=VALUE, e.g. --set bodies.0.material.mu=2e5"
+MAX_BYTES = 1 << 20  # a scene file is hand-written: the bundled ones are under 10 KiB
+MAX_NODES = 100_000  # YAML nodes, every alias expansion counted: 100x the largest bundled scene
+MAX_DEPTH = 64  # nesting levels of mappings and lists (scenes use about 8)
+MAX_SHOWN = 20  # problems printed; the rest are counted
+_CONVERTED = 500  # pydantic errors turned into located problems (each costs a walk of the schema)
 _FLOAT, _BOOL = "tag:yaml.org,2002:float", "tag:yaml.org,2002:bool"
 _SEQUENCES = (list, tuple, set, frozenset, Sequence)
 
@@ -47,19 +57,47 @@ class Problem:
 
 
 class SceneError(InputError):
-    """Every problem found in the scene and its overrides, so the user can fix them all in one go."""
+    """Every problem found in the scene and its overrides, so the user can fix them all in one go; the first
+    MAX_SHOWN are printed and the rest counted (`more` counts problems found but not located)."""
 
-    def __init__(self, problems: list[Problem]):
+    def __init__(self, problems: list[Problem], more: int = 0):
         self.problems = list(problems)
-        super().__init__("\n".join(map(str, self.problems)))
+        hidden = len(self.problems) - MAX_SHOWN + more if len(self.problems) > MAX_SHOWN else more
+        lines = list(map(str, self.problems[:MAX_SHOWN]))
+        if hidden > 0:
+            lines.append(f"... and {hidden} more problems (fix the ones above and validate again)")
+        super().__init__("\n".join(lines))
 
 
 def _fail(file: str, message: str, key: str = "", mark: Mark | None = None) -> SceneError:
     return SceneError([Problem(file, *(mark or (None, None)), key, message)])
 
 
-class _Loader(yaml.SafeLoader):
-    """SafeLoader with YAML 1.2 floats and booleans.
+class _TooBig(yaml.MarkedYAMLError):
+    """The composer stopped: too many nodes or too deep."""
+
+
+class _BoundedComposer(Composer):
+    """PyYAML's composer with a node count and a nesting depth, checked before each node is built."""
+
+    def compose_document(self):
+        self._nodes, self._depth = 0, 0
+        return super().compose_document()
+
+    def compose_node(self, parent, index):
+        self._nodes += 1
+        if self._nodes > MAX_NODES or self._depth >= MAX_DEPTH:
+            what = (f"nested deeper than {MAX_DEPTH} levels" if self._depth >= MAX_DEPTH else
+                    f"more than {MAX_NODES:,} YAML nodes; a scene is a short hand-written file")
+            raise _TooBig(problem=what, problem_mark=self.peek_event().start_mark)
+        self._depth += 1
+        node = super().compose_node(parent, index)
+        self._depth -= 1
+        return node
+
+
+class _Loader(_BoundedComposer, yaml.SafeLoader):
+    """SafeLoader with YAML 1.2 floats and booleans and a bounded composer.
 
     PyYAML follows YAML 1.1, where `1e5` is a string (only `1.0e+5` is a float) and `no`/`on`/`yes`
     are booleans (so `name: no` would become False). Here every float a user writes is a float and
@@ -89,6 +127,24 @@ _Loader.add_implicit_resolver(
 )
 
 
+try:
+    from yaml._yaml import CParser
+
+    class _FastLoader(_BoundedComposer, CParser, SafeConstructor, Resolver):
+        """The same loader on libyaml's parser (about 3x faster). Its syntax messages are terser, so a file it
+        refuses is parsed again by _Loader for the message."""
+
+        yaml_implicit_resolvers = _Loader.yaml_implicit_resolvers
+
+        def __init__(self, stream):
+            CParser.__init__(self, stream)
+            Composer.__init__(self)
+            SafeConstructor.__init__(self)
+            Resolver.__init__(self)
+except ImportError:  # PyYAML built without libyaml
+    _FastLoader = _Loader
+
+
 def _dotted(path) -> str:
     return ".".join(map(str, path))
 
@@ -116,9 +172,11 @@ class _Tree:
         self.file, self.marks, self.key_marks = file, {}, {}
         self.problems: list[Problem] = []
         self._open: set[int] = set()
+        self._built = 0
         try:
-            self._loader = _Loader(text)
-            root = self._loader.get_single_node()
+            root = self._compose(text)
+        except _TooBig as e:
+            raise _fail(file, f"{e.problem}", mark=(e.problem_mark.line + 1, e.problem_mark.column + 1)) from None
         except yaml.MarkedYAMLError as e:
             msg = f"invalid YAML: {e.problem}"
             if e.context and e.context_mark:
@@ -130,7 +188,6 @@ class _Tree:
             at = getattr(e, "position", None)
             mark = None if at is None else (text.count("\n", 0, at) + 1, at - text.rfind("\n", 0, at))
             raise _fail(file, f"invalid YAML: {str(e).splitlines()[0]}", mark=mark) from None
-        self._loader.dispose()
         if root is None:
             raise _fail(file, "file is empty (expected a mapping of scene settings, e.g. 'bodies:')")
         if not isinstance(root, yaml.MappingNode):
@@ -140,12 +197,30 @@ class _Tree:
         if self.problems:
             raise SceneError(self.problems)
 
+    def _compose(self, text: str) -> yaml.Node | None:
+        """The node tree, from libyaml when it reads the file; a file it refuses is read again for the message."""
+        try:
+            self._loader = _FastLoader(text)
+            return self._loader.get_single_node()
+        except _TooBig:
+            raise
+        except yaml.YAMLError:
+            if _FastLoader is _Loader:
+                raise
+        self._loader = _Loader(text)
+        return self._loader.get_single_node()
+
     def _problem(self, path: DataPath, mark: Mark, message: str) -> None:
         self.problems.append(Problem(self.file, *mark, _dotted(path), message))
 
     def _build(self, node: yaml.Node, path: DataPath) -> Any:
         if id(node) in self._open:
             return self._problem(path, _pos(node), "alias refers to itself")
+        self._built += 1
+        if self._built > MAX_NODES or len(path) > MAX_DEPTH:
+            what = (f"aliases expand to more than {MAX_NODES:,} YAML nodes" if self._built > MAX_NODES else
+                    f"aliases nest deeper than {MAX_DEPTH} levels")
+            raise _fail(self.file, f"{what}; write the values out or use fewer aliases", _dotted(path), _pos(node))
         if isinstance(node, yaml.ScalarNode):
             try:
                 return self._loader.construct_object(node)
@@ -378,6 +453,8 @@ def _explain(err: dict, model_cls: type[BaseModel], data: Any) -> tuple[DataPath
         return path + (disc,), "value", f"unknown {disc} {tag!r}" + (f" ({hint})" if hint else "")
     msg = err["msg"].removeprefix("Value error, ").removeprefix("Assertion failed, ")
     msg = "must be " + msg.removeprefix("Input should be ") if msg.startswith("Input should be ") else msg
+    if kind == "finite_number":
+        msg += ", not .inf or .nan"
     if not isinstance(got, dict) and len(_show(got)) <= 40:
         extra = [f"got {_show(got)}"]
         tp = _member(tp, disc, got)
@@ -410,13 +487,17 @@ def _problem(err: dict, model_cls: type[BaseModel], tree: _Tree,
 
 def _read(path: str | os.PathLike, file: str) -> str:
     try:
-        raw = Path(path).read_bytes()
+        with open(path, "rb") as f:
+            raw = f.read(MAX_BYTES + 1)
     except FileNotFoundError:
         raise _fail(file, f"file not found (relative paths start from the current directory, {os.getcwd()})") from None
     except IsADirectoryError:
         raise _fail(file, "is a directory; give the path of a YAML scene file") from None
     except OSError as e:
         raise _fail(file, f"cannot read file: {e.strerror or e}") from None
+    if len(raw) > MAX_BYTES:
+        raise _fail(file, f"larger than {MAX_BYTES // 1024} KiB; a scene is a short hand-written file (meshes go in "
+                          f"their own files, named by geometry.shape.path)")
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError as e:
@@ -433,7 +514,8 @@ def _variant_edits(tree: _Tree, name: str) -> list[tuple[list[str | int], object
         names = list(variants) if isinstance(variants, dict) else []
         where = tree.marks.get(("variants",))
         defined = f"it defines {', '.join(names)}" if names else "it defines none (add a top-level 'variants:' mapping)"
-        raise _fail(tree.file, f"no variant {name!r}{_did_you_mean(name, names)}; {defined}", "variants", where)
+        hint = _did_you_mean(name, names)
+        raise _fail(tree.file, f"no variant {name!r}{f' ({hint})' if hint else ''}; {defined}", "variants", where)
     edits = variants[name]
     if not isinstance(edits, dict):
         raise _fail(tree.file, "a variant is a mapping of dotted keys to values, e.g. bodies.0.material.mu: 2.0e4",
@@ -455,9 +537,10 @@ def load_scene(path: str | os.PathLike, model_cls: type[M], overrides: Sequence[
     try:
         return model_cls.model_validate(tree.data), text
     except ValidationError as e:
-        problems = {str(p): p for p in (_problem(err, model_cls, tree, set_paths) for err in e.errors())}
+        errors = e.errors(include_url=False)
+        problems = {str(p): p for p in (_problem(err, model_cls, tree, set_paths) for err in errors[:_CONVERTED])}
         order = lambda p: (p.file == OVERRIDE, p.line or 0, p.col or 0)  # noqa: E731
-        raise SceneError(sorted(problems.values(), key=order)) from None
+        raise SceneError(sorted(problems.values(), key=order), more=max(0, len(errors) - _CONVERTED)) from None
 
 
 def _edit(tree: _Tree, edits, variant: str | None) -> list[tuple[DataPath, str, Mark | None]]:

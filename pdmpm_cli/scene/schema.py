@@ -7,12 +7,16 @@ geometry modes, materials and colliders are discriminated unions keyed by `type`
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any, Literal, Union
 
-from pydantic import Field, model_validator
+from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
+from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from pdmpm_cli.engine.materials import MATERIALS
 from pdmpm_cli.spec import Strict, Vec3
+
+MAX_FRAMES = 100_000  # duration x fps; an hour at 30 fps is 108,000 frames of output per particle
 
 
 # ---------------------------------------------------------------- shapes
@@ -356,6 +360,15 @@ class Simulation(Strict):
                            "elastic and plastic bodies without fracture). `pdmpm run --backend` overrides it."
     )
 
+    @field_validator("fps")
+    @classmethod
+    def _frames(cls, fps: float, info: ValidationInfo) -> float:
+        duration = info.data.get("duration")
+        if duration is not None and duration * fps > MAX_FRAMES:
+            raise ValueError(f"{duration:g} s at {fps:g} frames/s is {duration * fps:.3g} frames, more than "
+                             f"{MAX_FRAMES:,}; lower fps (at most {MAX_FRAMES / duration:.3g} for this duration)")
+        return fps
+
 
 class Wind(Strict):
     """A uniform wind: linear drag pulling material towards the wind velocity, a = drag (velocity - v)."""
@@ -424,6 +437,21 @@ class Camera(Strict):
     up: Vec3 = Field((0.0, 1.0, 0.0), description="Up direction of the image [-].")
     view_angle: float = Field(30.0, gt=0, lt=180, description="Vertical field of view [degrees].")
 
+    @model_validator(mode="after")
+    def _direction(self):
+        view = [f - p for p, f in zip(self.position, self.focus)]
+        length = math.hypot(*view)
+        if length == 0:
+            raise ValueError(f"position and focus are the same point {list(self.position)}: the camera has no "
+                             f"direction to look in; move the position away from the focus")
+        up = math.hypot(*self.up)
+        side = math.hypot(*(self.up[i] * view[(i + 1) % 3] - self.up[(i + 1) % 3] * view[i] for i in range(3)))
+        if up == 0 or side <= 1e-6 * up * length:
+            raise ValueError(f"up {list(self.up)} is zero or along the view direction {[round(v, 6) for v in view]}: "
+                             f"the image has no up; give an up direction across the view, e.g. [0, 1, 0] or "
+                             f"[0, 0, 1]")
+        return self
+
 
 class RenderSettings(Strict):
     """Defaults for `pdmpm render`; its command-line options override them."""
@@ -459,6 +487,27 @@ class Scene(Strict):
     variants: dict[str, dict[str, Any]] = Field(
         default_factory=dict, description="Named sets of overrides, each a mapping 'dotted.key: value' as in --set "
         "(e.g. soft: {bodies.0.material.mu: 2.0e4}); `pdmpm run scene.yaml --variant soft` applies one.")
+
+    @field_validator("bodies")
+    @classmethod
+    def _resolved(cls, bodies: list[Body], info: ValidationInfo) -> list[Body]:
+        """A particle spacing above the cell leaves cells inside the body without particles: holes in the
+        grid's quadrature (MPM wants about 2 particles per cell per axis, the default spacing)."""
+        grid = info.data.get("grid")
+        if grid is None:
+            return bodies
+        dx, errors = grid.cell_size, []
+        for i, body in enumerate(bodies):
+            h = getattr(body.geometry, "spacing", None)
+            if h is not None and h > dx and body.geometry.mode != "voronoi":
+                message = (f"{h:g} m is larger than the grid cell ({dx:g} m): cells inside the body would hold no "
+                           f"particle; use at most {dx:g} m, or leave spacing out for {dx / 2:g} m (2 particles per "
+                           f"cell per axis)")
+                errors.append(InitErrorDetails(type=PydanticCustomError("spacing_above_cell", message),
+                                               loc=(i, "geometry", "spacing"), input=h))
+        if errors:
+            raise ValidationError.from_exception_data(cls.__name__, errors)
+        return bodies
 
     @model_validator(mode="after")
     def _unique_names(self):
