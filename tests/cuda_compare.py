@@ -69,9 +69,9 @@ SYNTHETIC = {
 SHELL = ("grid.cell_size=0.05", "bodies.0.geometry.spacing=0.05", "bodies.0.geometry.layers=1",
          "bodies.1.geometry.spacing=0.05")
 BUNDLED = {
-    "elastic_drop": ("bodies.0.geometry.spacing=0.075",),
-    "cloth": ("grid.cell_size=0.02", "bodies.0.geometry.spacing=0.025"),
-    "cloth_pegs": ("bodies.0.geometry.spacing=0.05",),
+    "elastic_drop": ("grid.cell_size=0.075", "bodies.0.geometry.spacing=0.075"),
+    "cloth": ("grid.cell_size=0.025", "bodies.0.geometry.spacing=0.025"),
+    "cloth_pegs": ("bodies.0.geometry.spacing=0.025",),
     "board_elastic": SHELL,
     "board_plastic": SHELL,
     "bunnies_elastic": ("grid.cell_size=0.03", "bodies.0.geometry.spacing=0.03", "bodies.1.geometry.spacing=0.03"),
