@@ -12,7 +12,7 @@ import numpy as np
 
 from pdmpm_cli import budget, checkpoint
 from pdmpm_cli.assemble import build_model
-from pdmpm_cli.discretize import Discretization, discretize
+from pdmpm_cli.discretize import Discretization, check_sizes, discretize, keyed
 from pdmpm_cli.engine.embedding import mesh_positions
 from pdmpm_cli.engine.materials import MATERIALS
 from pdmpm_cli.engine.model import Model
@@ -71,8 +71,13 @@ def prepare_resume(out: Path, scene=None, overrides=(), variant: str | None = No
 def prepare_scene(scene: Scene, path: Path, text: str = "") -> Prepared:
     """Discretise a validated scene (relative mesh paths resolve beside `path`) and make the Plan; a scene whose
     estimated memory exceeds what the machine has free is refused before sampling."""
-    budget.check_memory(scene, Path(path).parent, str(path))
-    disc = discretize(scene, Path(path).parent)
+    base = Path(path).parent
+    try:  # sizes first: a body too large for the domain is named as such, not as a memory estimate
+        check_sizes(scene, base)
+        budget.check_memory(scene, base, str(path))
+    except SceneValueError as e:
+        raise keyed(e, scene) from None
+    disc = discretize(scene, base)
     model = build_model(scene, disc)
     return Prepared(Path(path), scene, text, disc, model, make_plan(scene, disc, model))
 
