@@ -4,7 +4,7 @@ reads a pydantic object."""
 import numpy as np
 
 from pdmpm_cli.engine.bonds import calibration_coefficients, reference_family_terms
-from pdmpm_cli.engine.colliders import BOUNDARY_CODES, BOX, CYLINDER, PLANE, ROW, SPHERE
+from pdmpm_cli.engine.colliders import BOUNDARY_CODES, BOX, CYLINDER, MESH, PLANE, ROW, SPHERE
 from pdmpm_cli.discretize import Discretization
 from pdmpm_cli.engine.materials import MATERIALS, kind_of
 from pdmpm_cli.engine.model import BodyParams, FractureParams, Model
@@ -16,11 +16,14 @@ def _unit(v):
     return v / np.linalg.norm(v)
 
 
-def collider_table(colliders) -> np.ndarray:
-    """Pack validated scene colliders into the (n, ROW) table the kernels read (layout: engine.colliders)."""
-    table = np.zeros((len(colliders), ROW))
+def collider_table(colliders, samples=None) -> np.ndarray:
+    """Pack validated scene colliders into the table the kernels read (layout: engine.colliders): one header row
+    each, and after a mesh collider's its signed distance samples (`samples`: collider index -> DistanceSamples)."""
+    rows = []
     for i, c in enumerate(colliders):
-        row = table[i]
+        row = np.zeros(ROW)
+        rows.append(row[None])
+        row[15] = 1
         row[9] = -1.0 if getattr(c, "inside_out", False) else 1.0
         row[10:13] = c.velocity
         row[13] = BOUNDARY_CODES[c.boundary]
@@ -31,10 +34,17 @@ def collider_table(colliders) -> np.ndarray:
             row[0], row[1:4], row[4:7] = BOX, c.center, 0.5 * np.asarray(c.size)
         elif c.type == "sphere":
             row[0], row[1:4], row[7] = SPHERE, c.center, c.radius
-        else:
+        elif c.type == "cylinder":
             row[0], row[1:4], row[4:7] = CYLINDER, c.center, _unit(c.axis)
             row[7], row[8] = c.radius, 0.5 * c.height
-    return table
+        else:
+            d = samples[i]
+            data = np.zeros(-(-d.values.size // ROW) * ROW)
+            data[:d.values.size] = d.values.ravel()
+            rows.append(data.reshape(-1, ROW))
+            row[0], row[15], row[16:19], row[19:22], row[22] = MESH, 1 + len(rows[-1]), d.values.shape, d.origin, \
+                d.spacing
+    return np.concatenate(rows) if rows else np.zeros((0, ROW))
 
 
 def body_params(scene: Scene, disc: Discretization) -> tuple[BodyParams, ...]:
@@ -64,7 +74,7 @@ def build_model(scene: Scene, disc: Discretization) -> Model:
         particle_coef=calibration_coefficients(omega, disc.body, disc.body_horizon), particle_omega=omega,
         pin_mask=disc.pin_mask, pin_velocity=disc.pin_velocity, pin_stop=disc.pin_stop,
         bodies=body_params(scene, disc),
-        colliders=collider_table(scene.colliders), gravity=np.asarray(scene.gravity, dtype=np.float64),
+        colliders=collider_table(scene.colliders, disc.collider_samples), gravity=np.asarray(scene.gravity, dtype=np.float64),
         wind_velocity=np.asarray(scene.wind.velocity if scene.wind else (0.0, 0.0, 0.0), dtype=np.float64),
         wind_drag=scene.wind.drag if scene.wind else 0.0,
         origin=lo, dx=g.cell_size, grid_shape=tuple(int(c) + 1 for c in cells),

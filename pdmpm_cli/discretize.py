@@ -14,6 +14,7 @@ from pdmpm_cli.engine.bonds import build_families, drop_bonds
 from pdmpm_cli.errors import InputError, SceneValueError
 from pdmpm_cli.geometry import bunny, bvh, embed, primitive_surfaces, sampling, shapes, shell, voronoi
 from pdmpm_cli.geometry import mesh as meshes
+from pdmpm_cli.geometry.sdf import distance_samples
 from pdmpm_cli.scene.schema import Scene
 
 
@@ -120,6 +121,8 @@ class Discretization:
     pin_stop: np.ndarray  # (n,) time each pin stops [s] (inf: never), or (0,)
     meshes: list[EmbeddedMesh]  # shell surfaces and Voronoi cells, in body order
     notes: list[str]  # repairs made to input meshes, reported as warnings
+    collider_samples: dict = field(default_factory=dict)  # scene collider index -> DistanceSamples of a mesh collider
+    collider_meshes: dict = field(default_factory=dict)  # scene collider index -> its SurfaceMesh, placed, at t = 0
 
     @property
     def n_particles(self) -> int:
@@ -284,7 +287,10 @@ def discretize(scene: Scene, base_dir: Path) -> Discretization:
     not behave as the body was drawn. A problem with a shape is a SceneValueError naming its scene key."""
     try:
         check_sizes(scene, base_dir)
+        surfaces = {i: load_mesh_shape(c, base_dir) for i, c in enumerate(scene.colliders) if c.type == "mesh"}
+        samples = {i: distance_samples(m, 0.5 * scene.grid.cell_size) for i, m in surfaces.items()}
         disc = sample_bodies(scene, base_dir)
+        disc.collider_samples, disc.collider_meshes = samples, surfaces
     except SceneValueError as e:
         raise keyed(e, scene) from None
     disc.notes += family_notes(scene, disc)

@@ -153,10 +153,21 @@ def prepare_output_dir(out: Path, overwrite: bool):
                              f"choose another folder with --out")
         for name in ("run.h5", "run.usd"):
             (out / name).unlink(missing_ok=True)
-        for sub in ("vtk", "meshes", checkpoint.FOLDER):
+        for sub in ("vtk", "meshes", "colliders", checkpoint.FOLDER):
             if (out / sub).is_dir():
                 for f in (out / sub).iterdir():
                     f.unlink()
+
+
+def write_collider_meshes(prep: Prepared, out: Path) -> None:
+    """Each mesh collider's surface as placed at time 0, colliders/collider_<index>.ply (it then moves with its
+    velocity): for `pdmpm render` and for compositing in other tools."""
+    from pdmpm_cli.io.ply import write_ply
+
+    if prep.disc.collider_meshes:
+        (out / "colliders").mkdir(exist_ok=True)
+    for i, mesh in prep.disc.collider_meshes.items():
+        write_ply(out / "colliders" / f"collider_{i}.ply", mesh.vertices, mesh.triangles)
 
 
 def _writers(prep: Prepared, out: Path, static: dict, keep: int) -> list:
@@ -214,6 +225,7 @@ def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwr
     with OutputLock(out):
         if resume is None:
             prepare_output_dir(out, overwrite)
+            write_collider_meshes(prep, out)
         for folder in (out, out / "vtk", out / "meshes", out / checkpoint.FOLDER):
             remove_temporaries(folder)
         state = initial_state(model, plan, prep.disc.velocity, prep.disc.velocity_gradient)

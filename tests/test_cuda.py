@@ -93,6 +93,12 @@ def test_collider_and_pins(compared):
     assert_same(row)
 
 
+def test_mesh_collider_alike(compared):
+    row = compared["mesh_collider"]
+    assert row["external_impulse"] > 1e-2  # the moving mesh stopped the block
+    assert_same(row)
+
+
 def test_viscoelastic_splat_rebuilds_alike(compared):
     row = compared["viscous_splat"]
     assert "families:viscoelastic" in row["phases"] and row["rebuilt"]

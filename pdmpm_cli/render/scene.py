@@ -79,7 +79,7 @@ def _colliders(scene: dict) -> list:
 
 
 def _collider_mesh(c) -> pv.PolyData:
-    """A box, sphere or cylinder collider at time 0."""
+    """A box, sphere or cylinder collider at time 0 (a mesh collider's surface is a file of the run)."""
     if c.type == "box":
         lo, hi = np.subtract(c.center, np.divide(c.size, 2)), np.add(c.center, np.divide(c.size, 2))
         return pv.Box(bounds=(lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]))
@@ -227,9 +227,15 @@ class RenderScene:
         scene, focus, size = self.source.scene, (lo + hi) / 2, 40 * max(float(np.max(hi - lo)), 1e-3)
         colliders = _colliders(scene)
         moving = []
-        for c in colliders:
+        for i, c in enumerate(colliders):
             if c.type == "plane":
                 actor = self.plotter.add_mesh(_ground(_plane_center(c, focus), c.normal, size), texture=_checker())
+            elif c.type == "mesh":
+                surface = self.source.folder / "colliders" / f"collider_{i}.ply"
+                if not surface.is_file():  # a run folder copied without it: the collider is not drawn
+                    continue
+                actor = self.plotter.add_mesh(pv.read(surface), color="#8c8c8c", opacity=0.15 if c.inside_out else
+                                              0.35)
             else:
                 actor = self.plotter.add_mesh(_collider_mesh(c), color="#8c8c8c", smooth_shading=True,
                                               opacity=0.15 if c.inside_out else 0.35)

@@ -336,8 +336,16 @@ class CylinderCollider(ColliderBase):
     inside_out: bool = Field(False, description="True: material is kept inside the cylinder (a tube or cup).")
 
 
+class MeshCollider(ColliderBase, MeshShape):
+    """A closed surface mesh file as a collider, placed as a mesh body's shape is (units, scale, rotation,
+    translate or fit). Its level set is the mesh's signed distance sampled at half the grid cell."""
+
+    inside_out: bool = Field(False, description="True: material is kept inside the mesh (a closed container, as a "
+                                                "bottle's inner surface); false: outside it (a solid bowl's walls).")
+
+
 Collider = Annotated[
-    Union[PlaneCollider, BoxCollider, SphereCollider, CylinderCollider], Field(discriminator="type")
+    Union[PlaneCollider, BoxCollider, SphereCollider, CylinderCollider, MeshCollider], Field(discriminator="type")
 ]
 
 
