@@ -156,17 +156,11 @@ def icosphere(subdivisions: int, radius: float = 1.0):
 
 
 def bowl(outer=0.2, inner=0.16, edge=0.02):
-    """A hemispherical bowl as a closed solid (outer and inner hemispheres joined by a flat rim), opening upwards
-    (+y), rim at y = 0: triangles from revolving its profile. Volume 2 pi (outer^3 - inner^3) / 3."""
-    from pdmpm_cli.geometry.primitive_surfaces import _revolve
+    """A hemispherical bowl as a closed solid, rim at y = 0, opening upwards (geometry.primitive_surfaces)."""
+    from pdmpm_cli.geometry.primitive_surfaces import bowl_surface
 
-    out = [(outer * math.cos(a), outer * math.sin(a)) for a in np.linspace(-math.pi / 2, 0.0, 13)]
-    rim = [(inner + (outer - inner) * s, 0.0) for s in np.linspace(1.0, 0.0, 4)[1:-1]]
-    inn = [(inner * math.cos(a), inner * math.sin(a)) for a in np.linspace(0.0, -math.pi / 2, 11)]
-    profile = np.array(out + rim + inn)
-    profile[0, 0] = profile[-1, 0] = 0.0
-    V, T = _revolve(profile, edge)
-    return V[:, [0, 2, 1]] * np.array([1.0, 1.0, -1.0]), T  # z up -> y up, a rotation: orientation kept
+    mesh = bowl_surface(outer, inner, edge)
+    return mesh.vertices, mesh.triangles
 
 
 def torus(R=1.0, r=0.35, nu=48, nv=24):

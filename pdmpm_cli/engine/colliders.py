@@ -12,6 +12,7 @@ with constant velocity: its centre (or its samples) at time t is the position at
 
 import math
 
+import numpy as np
 from numba import njit
 
 PLANE, BOX, SPHERE, CYLINDER, MESH = 0, 1, 2, 3, 4
@@ -27,6 +28,12 @@ def header_rows(table):
         out.append(c)
         c += int(table[c, 15])
     return out
+
+
+def mesh_samples(table, c):
+    """Mesh collider c's signed distance samples as an (nx, ny, nz) array [m]."""
+    shape = tuple(int(v) for v in table[c, 16:19])
+    return table[c + 1:c + int(table[c, 15])].ravel()[:int(np.prod(shape))].reshape(shape)
 
 
 @njit(cache=True)
