@@ -22,6 +22,7 @@ from pdmpm_cli.engine.state import State
 from pdmpm_cli.engine.transfer import WALL
 from pdmpm_cli.errors import InputError, SceneValueError
 from pdmpm_cli.io.lock import LOCK_NAME, OutputLock
+from pdmpm_cli.io.surface import FluidBody, FluidSurfaces, FluidSurfaceWriter
 from pdmpm_cli.plan import make_plan
 from pdmpm_cli.scene.loader import load_scene, locate
 from pdmpm_cli.scene.schema import Scene
@@ -192,18 +193,30 @@ def _writers(prep: Prepared, out: Path, static: dict, keep: int) -> list:
     if meshes and scene.output.meshes:
         writers.append(MeshSeriesWriter.reopen(out / "meshes", meshes, keep) if keep else
                        MeshSeriesWriter(out / "meshes", meshes))
+    surfaces = fluid_surfaces(prep)
+    if surfaces.bodies and scene.output.meshes:
+        writers.append(FluidSurfaceWriter.reopen(out / "meshes", surfaces, keep) if keep else
+                       FluidSurfaceWriter(out / "meshes", surfaces))
     if scene.output.usd:
-        writers.append(_usd_writer(prep, out, keep))
+        writers.append(_usd_writer(prep, out, keep, surfaces))
     return writers
 
 
-def _usd_writer(prep: Prepared, out: Path, keep: int):
-    """The run's USD stage (io.usd): each body's particle range, width (its spacing) and embedded meshes."""
+def fluid_surfaces(prep: Prepared) -> FluidSurfaces:
+    """The fluid (viscoelastic) bodies whose reconstructed surfaces the exporters write each frame."""
+    m = prep.model
+    return FluidSurfaces([FluidBody(b.name, b.start, b.end, b.spacing, m.particle_volume[b.start:b.end])
+                          for b in m.bodies if b.kind == "viscoelastic"])
+
+
+def _usd_writer(prep: Prepared, out: Path, keep: int, surfaces: FluidSurfaces):
+    """The run's USD stage (io.usd): each body's particle range, width (its spacing), embedded meshes and fluid
+    surfaces."""
     from pdmpm_cli.io import usd
 
     bodies = [usd.UsdBody(b.name, s, e, float(h)) for b, (s, e), h in
               zip(prep.scene.bodies, prep.disc.body_ranges, prep.disc.body_spacing)]
-    layout = {"fps": 1.0 / prep.plan.frame_dt, "bodies": bodies, "meshes": prep.disc.meshes}
+    layout = {"fps": 1.0 / prep.plan.frame_dt, "bodies": bodies, "meshes": prep.disc.meshes, "surfaces": surfaces}
     path = out / usd.FILE_NAME
     return usd.UsdWriter.reopen(path, frames=keep, **layout) if keep else usd.UsdWriter(path, **layout)
 

@@ -2,9 +2,8 @@
 
 Distances are exact (closest point on the nearest triangle, Ericson 2005, 'Real-Time Collision Detection' 5.1.5) and
 signed by the generalized winding number (Jacobson et al. 2013), so a mesh with small defects still has a clear
-inside. Candidate triangles come from a KD-tree of points spread over the surface: the nearest surface point is
-within the distance to the nearest spread point, and any triangle within that distance has a spread point within it
-plus the spreading radius. Far from the surface the distance to the nearest spread point is kept.
+inside. Each triangle visits the samples within BAND samples of its bounding box; farther samples take the
+distance to the nearest of points spread over the surface (a KD-tree), where no collider responds.
 """
 
 from dataclasses import dataclass
@@ -67,34 +66,43 @@ def _point_triangle(p, a, b, c):
 
 
 @njit(cache=True)
-def _nearest(points, V, T, cand_start, cand, out):
-    """Distance from each point to its nearest candidate triangle."""
-    for i in range(points.shape[0]):
-        best = np.inf
-        for k in range(cand_start[i], cand_start[i + 1]):
-            t = cand[k]
-            best = min(best, _point_triangle(points[i], V[T[t, 0]], V[T[t, 1]], V[T[t, 2]]))
-        out[i] = np.sqrt(best)
+def _rasterize(V, T, origin, spacing, band, out):
+    """Distance from each lattice sample to the nearest triangle, for samples within `band` [m] of one (others keep
+    their value): each triangle visits the samples of its bounding box grown by the band."""
+    nx, ny, nz = out.shape
+    p = np.empty(3)
+    for t in range(T.shape[0]):
+        a, b, c = V[T[t, 0]], V[T[t, 1]], V[T[t, 2]]
+        lo = (np.minimum(np.minimum(a, b), c) - band - origin) / spacing
+        hi = (np.maximum(np.maximum(a, b), c) + band - origin) / spacing
+        i0, j0, k0 = max(int(np.ceil(lo[0])), 0), max(int(np.ceil(lo[1])), 0), max(int(np.ceil(lo[2])), 0)
+        i1, j1, k1 = min(int(hi[0]), nx - 1), min(int(hi[1]), ny - 1), min(int(hi[2]), nz - 1)
+        for i in range(i0, i1 + 1):
+            p[0] = origin[0] + i * spacing
+            for j in range(j0, j1 + 1):
+                p[1] = origin[1] + j * spacing
+                for k in range(k0, k1 + 1):
+                    p[2] = origin[2] + k * spacing
+                    d = np.sqrt(_point_triangle(p, a, b, c))
+                    if d < out[i, j, k]:
+                        out[i, j, k] = d
 
 
-def _spread(mesh: SurfaceMesh, step: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """Points over every triangle no farther than `radius` from any point of it, and their triangles."""
+def _spread(mesh: SurfaceMesh, step: float) -> np.ndarray:
+    """Points over every triangle, each triangle split into pieces no longer than `step`."""
     V, T = mesh.vertices, mesh.triangles
     a, b, c = V[T[:, 0]], V[T[:, 1]], V[T[:, 2]]
     longest = np.max(np.stack([np.linalg.norm(b - a, axis=1), np.linalg.norm(c - b, axis=1),
                                np.linalg.norm(a - c, axis=1)]), axis=0)
-    pts, tri = [], []
-    for m in np.unique(np.maximum(1, np.ceil(longest / step)).astype(int)):
-        sel = np.flatnonzero(np.maximum(1, np.ceil(longest / step)).astype(int) == m)
+    splits = np.maximum(1, np.ceil(longest / step)).astype(int)
+    pts = []
+    for m in np.unique(splits):
+        sel = np.flatnonzero(splits == m)
         i, j = np.meshgrid(np.arange(m + 1), np.arange(m + 1), indexing="ij")
         keep = i + j <= m
         u, w = (i[keep] / m)[None, :, None], (j[keep] / m)[None, :, None]
-        p = a[sel, None] + u * (b - a)[sel, None] + w * (c - a)[sel, None]
-        pts.append(p.reshape(-1, 3))
-        tri.append(np.repeat(sel, keep.sum()))
-    # a point of a triangle split into m^2 pieces is within (longest edge / m) / sqrt(3) of a lattice point
-    radius = float(np.max(longest / np.maximum(1, np.ceil(longest / step)))) / np.sqrt(3.0)
-    return np.concatenate(pts), np.concatenate(tri), radius
+        pts.append((a[sel, None] + u * (b - a)[sel, None] + w * (c - a)[sel, None]).reshape(-1, 3))
+    return np.concatenate(pts)
 
 
 def distance_samples(mesh: SurfaceMesh, spacing: float) -> DistanceSamples:
@@ -103,17 +111,11 @@ def distance_samples(mesh: SurfaceMesh, spacing: float) -> DistanceSamples:
     counts = np.ceil((mesh.vertices.max(axis=0) + MARGIN * spacing - lo) / spacing).astype(int) + 1
     axes = [lo[d] + spacing * np.arange(counts[d]) for d in range(3)]
     points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    spread, owner, radius = _spread(mesh, 0.5 * spacing)
-    tree = cKDTree(spread)
-    dist, _ = tree.query(points)  # at most `radius` above the distance
-    band = np.flatnonzero(dist <= BAND * spacing)
-    near = tree.query_ball_point(points[band], dist[band] + radius + 1e-12 * spacing)
-    cand = [np.unique(owner[n]) for n in near]
-    start = np.zeros(len(band) + 1, dtype=np.int64)
-    start[1:] = np.cumsum([len(c) for c in cand])
-    exact = np.empty(len(band))
-    _nearest(points[band], mesh.vertices, mesh.triangles.astype(np.int64), start,
-             np.concatenate(cand).astype(np.int64), exact)
-    dist[band] = exact
+    spread = _spread(mesh, 0.5 * spacing)
+    dist, _ = cKDTree(spread).query(points)  # far from the surface: within a third of a sample
+    exact = np.full(tuple(counts), np.inf)
+    _rasterize(mesh.vertices, mesh.triangles.astype(np.int64), lo, float(spacing), BAND * spacing, exact)
+    near = np.isfinite(exact.ravel())
+    dist[near] = exact.ravel()[near]
     dist[inside_mesh(mesh, points)] *= -1.0
     return DistanceSamples(lo, float(spacing), dist.reshape(tuple(counts)))
