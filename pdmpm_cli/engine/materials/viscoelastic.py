@@ -16,10 +16,17 @@ Each directed bond stores the pair sums t_pq + t_qp of both branches (bond_force
 no reverse-bond index is needed; both copies of a bond hold bitwise-identical values and
 f_p = sum_q (t_pq + t_qp) dir(eta) V_p V_q conserves linear momentum pairwise. bond_len0 < 0 marks a
 broken bond. Families are rebuilt from current neighbours (rebuild_families) so streams merge and split.
+
+Departure from the paper: the bonds' dilatation alone lets a liquid lose volume, since its increments start from
+the current configuration and a family rebuild that keeps every family's mean extension leaves it unchanged. So
+each particle also carries its volume ratio J, advanced by the grid velocity's divergence (J <- J (1 + dt tr C),
+C the APIC velocity gradient; Stomakhin et al. 2014, Hu et al. 2018), and a pressure p = K (1 - J) acts through
+the grid as the MLS-MPM stress term (Hu et al. 2018): it cannot drift, and K defaults to the weakly compressible
+rule (sound speed ten times the largest flow speed, Monaghan 1994).
 """
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -57,6 +64,11 @@ class Schema(Strict):
     rebuild_distance: float = Doc(
         0.5, gt=0, le=2, description="Families are rebuilt when some particle has moved this multiple of the "
         "particle spacing, relative to the body's mean motion, since the last rebuild [-].")
+    bulk_modulus: float | None = Doc(
+        None, gt=0, description="Bulk modulus K of the pressure p = K (1 - J) from each particle's volume ratio J, "
+        "which keeps a liquid's volume (on top of the bonds' own bulk response, lam + 2 mu / 3). None: the weakly "
+        "compressible rule K = density (10 v)^2, v the largest speed the body can reach (its initial speed and a "
+        "fall over the domain's height, the colliders' and the wind's speed), so volume changes stay near 1 % [Pa].")
 
 
 @dataclass(frozen=True)
@@ -68,11 +80,25 @@ class Params:
     relaxing_fraction: float  # l [-]
     break_stretch: float  # [-] (inf: never)
     rebuild_distance: float  # [spacings]
+    bulk_modulus: float  # K of the volume-ratio pressure [Pa] (nan: from the flow speed, `with_flow_speed`)
 
 
 def params(section) -> Params:
     return Params(section.density, section.lam, section.mu, section.relaxation_time, section.relaxing_fraction,
-                  section.break_stretch or math.inf, section.rebuild_distance)
+                  section.break_stretch or math.inf, section.rebuild_distance,
+                  math.nan if section.bulk_modulus is None else section.bulk_modulus)
+
+
+SOUND_OVER_FLOW = 10.0  # weakly compressible rule: sound speed >= 10 x flow speed keeps |J - 1| ~ (v / c)^2 ~ 1 %
+
+
+def with_flow_speed(p: Params, speed: float) -> Params:
+    """The bulk modulus the scene left open, K = rho (10 v)^2 for the largest expected flow speed v [m/s] (Monaghan
+    1994); at least the bonds' own P-wave modulus, so a scene at rest still gets a pressure."""
+    if not math.isnan(p.bulk_modulus):
+        return p
+    k = max(p.density * (SOUND_OVER_FLOW * speed) ** 2, p.lam + 2.0 * p.mu)
+    return replace(p, bulk_modulus=k)
 
 
 @njit(cache=True)
@@ -198,6 +224,33 @@ def viscoelastic_forces(start, end, bulk, mu, tau, fraction, break_stretch, delt
     return broken
 
 
+@njit(cache=True)
+def volume_pressure_at(p, bulk, dt_prev, dt, inv_dx, pin_mask, particle_volume, particle_mass, particle_J,
+                       particle_C):
+    """Particle p's volume ratio J <- J (1 + dt_prev tr C) (C from the last G2P is the velocity gradient the
+    particle moved with over dt_prev), then its pressure p = K (1 - J) folded into particle_C for this step's P2G:
+    the MLS-MPM stress term -dt V sigma D^-1 (x_i - x_p) with sigma = -p I and V = J V0 is an isotropic affine
+    momentum, so C += dt V p D^-1 / m (D^-1 = 3 / dx^2 for cubic B-splines; Hu et al. 2018). G2P overwrites C, so
+    the checkpointed C stays the velocity gradient. Pinned particles keep only their prescribed motion."""
+    j = particle_J[p] * (1.0 + dt_prev * (particle_C[p, 0, 0] + particle_C[p, 1, 1] + particle_C[p, 2, 2]))
+    particle_J[p] = j
+    if pin_mask.shape[0] > 0 and pin_mask[p] != 0:
+        return
+    s = dt * particle_volume[p] * j * bulk * (1.0 - j) * 3.0 * inv_dx * inv_dx / particle_mass[p]
+    for a in range(3):
+        particle_C[p, a, a] += s
+
+
+@njit(parallel=True, cache=True)
+def volume_pressures(start, end, bulk, dt_prev, dt, inv_dx, pin_mask, particle_volume, particle_mass, particle_J,
+                     particle_C):
+    """`volume_pressure_at` for particles start..end-1."""
+    for p in prange(start, end):
+        volume_pressure_at(p, bulk, dt_prev, dt, inv_dx, pin_mask, particle_volume, particle_mass, particle_J,
+                           particle_C)
+
+
+VOLUME_PRESSURE = Kernel(volume_pressure_at, volume_pressures)
 INCREMENTAL_DILATATION = Kernel(incremental_dilatation_at, incremental_dilatation)
 FORCES = Kernel(viscoelastic_force_at, viscoelastic_forces, reduce="sum")
 
@@ -267,17 +320,21 @@ def rebuild_families(particle_x, bond_start, bond_nbr, bond_arrays, ranges, leng
     return new_start, new_nbr, {name: np.concatenate(parts)[order] for name, parts in values.items()}
 
 
-def effective_constants(lam: float, mu: float, density: float) -> dict:
-    """Instantaneous (unrelaxed) isotropic constants of the LPS response: K = lam + 2 mu / 3 and mu."""
+def effective_constants(lam: float, mu: float, density: float, pressure_modulus: float = 0.0) -> dict:
+    """Instantaneous (unrelaxed) isotropic constants: the LPS bonds' K = lam + 2 mu / 3 and mu, plus the volume
+    pressure's bulk modulus. p_wave_modulus is the bonds' alone (it sets the bond bound of the step); wave_speed
+    includes the pressure (it sets the CFL bound)."""
     k = lam + 2.0 * mu / 3.0
     m = lam + 2.0 * mu
+    kt = k + pressure_modulus
     return {
         "p_wave_modulus": m,
-        "youngs_modulus": 9.0 * k * mu / (3.0 * k + mu),
-        "poisson_ratio": (3.0 * k - 2.0 * mu) / (2.0 * (3.0 * k + mu)),
-        "bulk_modulus": k,
+        "youngs_modulus": 9.0 * kt * mu / (3.0 * kt + mu),
+        "poisson_ratio": (3.0 * kt - 2.0 * mu) / (2.0 * (3.0 * kt + mu)),
+        "bulk_modulus": kt,
+        "pressure_bulk_modulus": pressure_modulus,
         "shear_modulus": mu,
-        "wave_speed": math.sqrt(m / density),
+        "wave_speed": math.sqrt((m + pressure_modulus) / density),
     }
 
 
@@ -323,6 +380,14 @@ def families(solver, body: int, dt: float):
         state.particle_x_rebuild[b.start:b.end] = state.particle_x[b.start:b.end]
 
 
+def volume_pressure(solver, body: int, dt: float):
+    """J advanced over the previous step and this step's pressure folded into the P2G affine momentum."""
+    b, a, m = solver.model.bodies[body], solver.a, solver.m
+    solver.backend.run(VOLUME_PRESSURE, b.start, b.end, b.params.bulk_modulus, solver.state.dt_prev, dt,
+                       1.0 / solver.model.dx, m.pin_mask, m.particle_volume, m.particle_mass, a.particle_J,
+                       a.particle_C)
+
+
 def bonds(solver, body: int, dt: float):
     """Eq. 12 with the LPS increment since the previous force evaluation -> particle_force."""
     b, a, m = solver.model.bodies[body], solver.a, solver.m
@@ -344,13 +409,19 @@ def energy(solver, state, body: int) -> float:
 
 
 def constants(p: Params) -> dict:
-    return effective_constants(p.lam, p.mu, p.density)
+    return effective_constants(p.lam, p.mu, p.density, 0.0 if math.isnan(p.bulk_modulus) else p.bulk_modulus)
+
+
+def volume_ratio(model, state) -> np.ndarray:
+    return state.particle_J
 
 
 KIND = MaterialKind(
     name="viscoelastic", schema=Schema, params=params, forces=bonds, constants=constants, energy=energy,
-    after_forces=families, start=init_state,
+    before_forces=volume_pressure, after_forces=families, start=init_state, with_flow_speed=with_flow_speed,
+    outputs={"particle_J": volume_ratio},
     fields=(
+        Field("particle_J", PARTICLE, fill=1.0, doc="volume ratio J = V / V0 from the grid velocity divergence [-]"),
         Field("bond_len0", BOND, doc="formation length of each bond [m] (< 0: broken)"),
         Field("bond_force_el", BOND, doc="non-relaxing pair force [N/m^6]"),
         Field("bond_force_visc", BOND, doc="relaxing pair force [N/m^6]"),
