@@ -17,12 +17,13 @@ no reverse-bond index is needed; both copies of a bond hold bitwise-identical va
 f_p = sum_q (t_pq + t_qp) dir(eta) V_p V_q conserves linear momentum pairwise. bond_len0 < 0 marks a
 broken bond. Families are rebuilt from current neighbours (rebuild_families) so streams merge and split.
 
-Departure from the paper: the bonds' dilatation alone lets a liquid lose volume, since its increments start from
-the current configuration and a family rebuild that keeps every family's mean extension leaves it unchanged. So
-each particle also carries its volume ratio J, advanced by the grid velocity's divergence (J <- J (1 + dt tr C),
-C the APIC velocity gradient; Stomakhin et al. 2014, Hu et al. 2018), and a pressure p = K (1 - J) acts through
-the grid as the MLS-MPM stress term (Hu et al. 2018): it cannot drift, and K defaults to the weakly compressible
-rule (sound speed ten times the largest flow speed, Monaghan 1994).
+Departure from the paper: the bonds' dilatation lets a liquid lose volume, since its increments start from the
+current configuration and a family rebuild that keeps every family's mean extension leaves it unchanged; in a
+sheared layer it even squeezes the liquid. So the bonds keep only their deviatoric part, and the bulk response is
+a pressure p = K (1 - J) from each particle's volume ratio J, advanced by the grid velocity's divergence
+(J <- J (1 + dt tr C), C the APIC velocity gradient; Stomakhin et al. 2014, Hu et al. 2018), acting through the
+grid as the MLS-MPM stress term (Hu et al. 2018). It cannot drift, and K defaults to the weakly compressible rule
+(sound speed ten times the largest flow speed, Monaghan 1994).
 """
 
 import math
@@ -44,13 +45,15 @@ from pdmpm_cli.spec import Strict
 class Schema(Strict):
     """Linearised peridynamics (paper section 5, eqs. 12-20) with standard-linear-solid relaxation.
 
-    Each step the previous configuration is the reference: the bond force grows by the linear peridynamic
-    solid response to the step's increment. The bulk part and (1 - relaxing_fraction) of the deviatoric part
-    are kept; relaxing_fraction of it decays with relaxation_time. Shear viscosity ~ relaxing_fraction mu tau."""
+    Each step the previous configuration is the reference: the bond force grows by the deviatoric part of the
+    linear peridynamic solid response to the step's increment; (1 - relaxing_fraction) of it is kept,
+    relaxing_fraction of it decays with relaxation_time. Shear viscosity relaxing_fraction mu tau. The bulk
+    response is a pressure from each particle's volume ratio, which keeps a liquid's volume."""
 
     model: Literal["viscoelastic"]
     density: float = Doc(gt=0, description="Mass density rho [kg/m^3].")
-    lam: float = Doc(ge=0, description="Lame's first parameter lambda; bulk modulus K = lam + 2 mu / 3 [Pa].")
+    lam: float = Doc(ge=0, description="Lame's first parameter lambda: the bulk modulus is at least lam + 2 mu / 3 "
+                     "[Pa].")
     mu: float = Doc(gt=0, description="Instantaneous shear modulus mu [Pa].")
     relaxation_time: float = Doc(
         gt=0, description="Relaxation time tau of the relaxing deviatoric part (honey short, cream longer) [s].")
@@ -66,9 +69,9 @@ class Schema(Strict):
         "particle spacing, relative to the body's mean motion, since the last rebuild [-].")
     bulk_modulus: float | None = Doc(
         None, gt=0, description="Bulk modulus K of the pressure p = K (1 - J) from each particle's volume ratio J, "
-        "which keeps a liquid's volume (on top of the bonds' own bulk response, lam + 2 mu / 3). None: the weakly "
-        "compressible rule K = density (10 v)^2, v the largest speed the body can reach (its initial speed and a "
-        "fall over the domain's height, the colliders' and the wind's speed), so volume changes stay near 1 % [Pa].")
+        "the material's whole bulk response. None: the weakly compressible rule K = density (10 v)^2, v the "
+        "largest speed the body can reach (its initial speed and a fall over the domain's height, the colliders' "
+        "and the wind's speed), so volume changes stay near 1 %; at least lam + 2 mu / 3 [Pa].")
 
 
 @dataclass(frozen=True)
@@ -94,10 +97,10 @@ SOUND_OVER_FLOW = 10.0  # weakly compressible rule: sound speed >= 10 x flow spe
 
 def with_flow_speed(p: Params, speed: float) -> Params:
     """The bulk modulus the scene left open, K = rho (10 v)^2 for the largest expected flow speed v [m/s] (Monaghan
-    1994); at least the bonds' own P-wave modulus, so a scene at rest still gets a pressure."""
+    1994); at least lam + 2 mu / 3, so a scene at rest still gets a pressure."""
     if not math.isnan(p.bulk_modulus):
         return p
-    k = max(p.density * (SOUND_OVER_FLOW * speed) ** 2, p.lam + 2.0 * p.mu)
+    k = max(p.density * (SOUND_OVER_FLOW * speed) ** 2, p.lam + 2.0 * p.mu / 3.0)
     return replace(p, bulk_modulus=k)
 
 
@@ -320,21 +323,17 @@ def rebuild_families(particle_x, bond_start, bond_nbr, bond_arrays, ranges, leng
     return new_start, new_nbr, {name: np.concatenate(parts)[order] for name, parts in values.items()}
 
 
-def effective_constants(lam: float, mu: float, density: float, pressure_modulus: float = 0.0) -> dict:
-    """Instantaneous (unrelaxed) isotropic constants: the LPS bonds' K = lam + 2 mu / 3 and mu, plus the volume
-    pressure's bulk modulus. p_wave_modulus is the bonds' alone (it sets the bond bound of the step); wave_speed
-    includes the pressure (it sets the CFL bound)."""
-    k = lam + 2.0 * mu / 3.0
-    m = lam + 2.0 * mu
-    kt = k + pressure_modulus
+def effective_constants(lam: float, mu: float, density: float, bulk: float) -> dict:
+    """Instantaneous (unrelaxed) isotropic constants: the volume pressure's bulk modulus and the bonds' mu.
+    p_wave_modulus, lam + 2 mu as in the paper's calibration, sets the bond bound of the step; wave_speed, with the
+    pressure's K, the CFL bound."""
     return {
-        "p_wave_modulus": m,
-        "youngs_modulus": 9.0 * kt * mu / (3.0 * kt + mu),
-        "poisson_ratio": (3.0 * kt - 2.0 * mu) / (2.0 * (3.0 * kt + mu)),
-        "bulk_modulus": kt,
-        "pressure_bulk_modulus": pressure_modulus,
+        "p_wave_modulus": lam + 2.0 * mu,
+        "youngs_modulus": 9.0 * bulk * mu / (3.0 * bulk + mu),
+        "poisson_ratio": (3.0 * bulk - 2.0 * mu) / (2.0 * (3.0 * bulk + mu)),
+        "bulk_modulus": bulk,
         "shear_modulus": mu,
-        "wave_speed": math.sqrt((m + pressure_modulus) / density),
+        "wave_speed": math.sqrt((bulk + 4.0 * mu / 3.0) / density),
     }
 
 
@@ -389,17 +388,17 @@ def volume_pressure(solver, body: int, dt: float):
 
 
 def bonds(solver, body: int, dt: float):
-    """Eq. 12 with the LPS increment since the previous force evaluation -> particle_force."""
+    """Eq. 12 with the LPS increment since the previous force evaluation -> particle_force: the deviatoric part
+    only, since the volume pressure (volume_pressure) replaces the bonds' bulk part."""
     b, a, m = solver.model.bodies[body], solver.a, solver.m
     p = b.params
     run = solver.backend.run
     elapsed = solver.state.dt_prev  # the increment since particle_x_prev happened over the previous step, not dt
     run(INCREMENTAL_DILATATION, b.start, b.end, b.horizon, a.particle_x, a.particle_x_prev, m.particle_volume,
         a.bond_start, a.bond_nbr, a.bond_len0, a.particle_m, a.particle_dtheta)
-    run(FORCES, b.start, b.end, p.lam + 2.0 * p.mu / 3.0, p.mu, p.relaxation_time, p.relaxing_fraction,
-        p.break_stretch, b.horizon, elapsed, a.particle_x, a.particle_x_prev, m.particle_volume, a.bond_start,
-        a.bond_nbr, a.particle_m, a.particle_dtheta, a.bond_len0, a.bond_force_el, a.bond_force_visc,
-        a.particle_force)
+    run(FORCES, b.start, b.end, 0.0, p.mu, p.relaxation_time, p.relaxing_fraction, p.break_stretch, b.horizon,
+        elapsed, a.particle_x, a.particle_x_prev, m.particle_volume, a.bond_start, a.bond_nbr, a.particle_m,
+        a.particle_dtheta, a.bond_len0, a.bond_force_el, a.bond_force_visc, a.particle_force)
     run(COPY_ROWS, b.start, b.end, a.particle_x, a.particle_x_prev)
 
 
@@ -409,7 +408,8 @@ def energy(solver, state, body: int) -> float:
 
 
 def constants(p: Params) -> dict:
-    return effective_constants(p.lam, p.mu, p.density, 0.0 if math.isnan(p.bulk_modulus) else p.bulk_modulus)
+    bulk = p.lam + 2.0 * p.mu / 3.0 if math.isnan(p.bulk_modulus) else p.bulk_modulus
+    return effective_constants(p.lam, p.mu, p.density, bulk)
 
 
 def volume_ratio(model, state) -> np.ndarray:
