@@ -3,9 +3,12 @@ virial, a column at rest (hydrostatics: height, volume and spacing kept), a dam 
 Couette flow (the analytic series with the stated viscosity). The longer versions are marked slow; bench/fluids.py
 prints the figures in docs/results.md."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
+from pdmpm_cli.checkpoint import restore, snapshot
 from pdmpm_cli.engine.materials.viscoelastic import volume_pressures
 from pdmpm_cli.engine.transfer import p2g_at
 from tests import fluid_cases as F
@@ -142,3 +145,19 @@ def test_startup_couette_follows_the_series(sim_factory):
 def test_startup_couette_follows_the_series_long(sim_factory):
     rows = couette_errors(sim_factory, 0.3, 6)
     np.testing.assert_allclose(rows[:, 1], rows[:, 2], rtol=0.1)
+
+
+def test_resume_carries_the_volume_ratio(sim_factory):
+    """particle_J is a declared array, so a checkpoint carries it: a resumed dam break is bitwise the uninterrupted
+    one, and the same resume with J reset to 1 is not (the declaration is what carries it)."""
+    scene = F.dam_break(0.04)
+    ref = sim_factory(base=scene)
+    ref.advance(0.02)
+    arrays, scalars = snapshot(ref.state)
+    ref.advance(0.04)
+    for lose_j, equal in ((False, True), (True, False)):
+        saved = dict(arrays, particle_J=np.ones_like(arrays["particle_J"])) if lose_j else arrays
+        sim = sim_factory(base=scene)
+        restore(SimpleNamespace(arrays=saved, attrs=scalars, path="memory"), sim.state, sim.solver)
+        sim.advance(0.04)
+        assert np.array_equal(sim.state.particle_x, ref.state.particle_x) == equal
