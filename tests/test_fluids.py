@@ -136,14 +136,14 @@ def couette_errors(sim_factory, duration, samples, **size):
 
 def test_startup_couette_follows_the_series(sim_factory):
     """Start-up Couette flow: the mid-layer velocity follows the analytic series with nu = l mu tau / rho within
-    10 % once the shear has crossed the layer (from a tenth of the diffusion time)."""
+    10 % after the first 5 % of the diffusion time (H + dx)^2 / nu (before, the Maxwell liquid's shear wave lags)."""
     rows = couette_errors(sim_factory, 0.12, 3, depth=0.06, length=0.12, width=0.02)
     np.testing.assert_allclose(rows[:, 1], rows[:, 2], rtol=0.1)
 
 
 @pytest.mark.slow
 def test_startup_couette_follows_the_series_long(sim_factory):
-    rows = couette_errors(sim_factory, 0.3, 6)
+    rows = couette_errors(sim_factory, 0.3, 5)
     np.testing.assert_allclose(rows[:, 1], rows[:, 2], rtol=0.1)
 
 
