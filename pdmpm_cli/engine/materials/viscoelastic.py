@@ -10,7 +10,8 @@ equals eq. 19's modulus state to first order:
     dt_pq    = (3 K dtheta_p / m_p) w L0  +  (15 mu / m_p) w (de - dtheta_p L0 / 3)   (bulk + deviatoric part)
 L0 is the bond's formation length. Relaxation is the standard linear solid (Mitchell 2011; Peridigm
 twoPoint_SLS): the bulk part and (1 - l) of the deviatoric part accumulate, a fraction l of the deviatoric
-part relaxes with time tau (effective shear viscosity ~ l mu tau).
+part relaxes with time tau (effective shear viscosity ~ l mu tau). The step passes K = 0 (the volume pressure
+below replaces the bulk part); the kernels keep K for the checks of the LPS increment against eq. 19.
 
 Each directed bond stores the pair sums t_pq + t_qp of both branches (bond_force_el, bond_force_visc), so
 no reverse-bond index is needed; both copies of a bond hold bitwise-identical values and
