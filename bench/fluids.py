@@ -22,7 +22,8 @@ from tests import fluid_cases as F  # noqa: E402
 
 
 def column(long: bool):
-    print("| density [kg/m^3] | bulk modulus [Pa] | duration [s] | tau [s] | height | volume | nearest spacing | wall [s] |")
+    print("| density [kg/m^3] | bulk modulus [Pa] | duration [s] | tau [s] | height | volume | nearest spacing "
+          "| wall [s] |")
     print("|---|---|---|---|---|---|---|---|")
     cases = [(rho, None) for rho in (1000.0, 1400.0)] + [(1000.0, 1.0)]
     for rho, bulk in cases:

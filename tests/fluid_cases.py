@@ -29,7 +29,8 @@ def column(density, duration, dx=0.02, size=(0.08, 0.12, 0.08), mu=1000.0, tau=0
         "grid": {"cell_size": dx, "domain": {"min": [0, 0, 0], "max": [0.3, 0.1 + sy + 0.1, 0.3]}},
         "gravity": [0, -G, 0],
         "bodies": [{"name": "column", "geometry": {"mode": "cloud", "sampling": "lattice", "shape": {
-            "type": "box", "center": [c, 0.1 + sy / 2, c], "size": [sx, sy, sz]}}, "material": liquid(density, mu, tau)}],
+            "type": "box", "center": [c, 0.1 + sy / 2, c], "size": [sx, sy, sz]}},
+            "material": liquid(density, mu, tau)}],
         "colliders": planes(([0, 0.1, 0], [0, 1, 0]), ([c - sx / 2, 0, 0], [1, 0, 0]), ([c + sx / 2, 0, 0], [-1, 0, 0]),
                             ([0, 0, c - sz / 2], [0, 0, 1]), ([0, 0, c + sz / 2], [0, 0, -1])),
     }
@@ -65,7 +66,8 @@ def couette(duration, dx=0.01, depth=0.1, length=0.2, width=0.04, speed=0.1, den
                                                                        z0 + width + 0.1]}},
         "gravity": [0, 0, 0],
         "bodies": [{"name": "layer", "geometry": {"mode": "cloud", "sampling": "lattice", "shape": {
-            "type": "box", "center": [0.1 + length / 2, y0 + depth / 2, z0 + width / 2], "size": [length, depth, width]}},
+            "type": "box", "center": [0.1 + length / 2, y0 + depth / 2, z0 + width / 2],
+            "size": [length, depth, width]}},
             "material": liquid(density, mu, tau)}],
         "colliders": planes(([0, y0, 0], [0, 1, 0]), boundary="sticky")
         + [{"type": "plane", "point": [0, y0 + depth, 0], "normal": [0, -1, 0], "boundary": "sticky",
