@@ -1,6 +1,8 @@
 """Validated scene + discretisation -> the engine's Model: typed parameters and packed arrays, so the engine never
 reads a pydantic object."""
 
+import math
+
 import numpy as np
 
 from pdmpm_cli.engine.bonds import calibration_coefficients, reference_family_terms
@@ -47,13 +49,34 @@ def collider_table(colliders, samples=None) -> np.ndarray:
     return np.concatenate(rows) if rows else np.zeros((0, ROW))
 
 
+def flow_speed(scene: Scene, x: np.ndarray, body) -> float:
+    """Largest speed a body can be expected to reach [m/s]: its initial speed (spin included) raised by a fall from
+    its highest particle to the domain's lowest point, or the colliders' or the wind's speed if larger."""
+    g = np.asarray(scene.gravity, dtype=np.float64)
+    centre = x.mean(axis=0) if len(x) else np.zeros(3)
+    spin = np.linalg.norm(body.angular_velocity) * (np.linalg.norm(x - centre, axis=1).max() if len(x) else 0.0)
+    v0 = float(np.linalg.norm(body.velocity)) + float(spin)
+    fall = 0.0
+    if np.any(g) and len(x):
+        down = g / np.linalg.norm(g)
+        lo, hi = np.asarray(scene.grid.domain.min), np.asarray(scene.grid.domain.max)
+        fall = max(0.0, float(np.where(down > 0, hi, lo) @ down - (x @ down).min()))
+    speeds = [math.sqrt(v0 * v0 + 2.0 * float(np.linalg.norm(g)) * fall)]
+    speeds += [float(np.linalg.norm(c.velocity)) for c in scene.colliders]
+    speeds += [float(np.linalg.norm(scene.wind.velocity))] if scene.wind else []
+    return max(speeds)
+
+
 def body_params(scene: Scene, disc: Discretization) -> tuple[BodyParams, ...]:
     out = []
     for i, (body, (start, end)) in enumerate(zip(scene.bodies, disc.body_ranges)):
         kind = kind_of(body.material)
         frac = body.fracture
+        params = MATERIALS[kind].params(body.material)
+        if MATERIALS[kind].with_flow_speed is not None:
+            params = MATERIALS[kind].with_flow_speed(params, flow_speed(scene, disc.rest_x[start:end], body))
         out.append(BodyParams(
-            name=body.name, kind=kind, params=MATERIALS[kind].params(body.material), start=start, end=end,
+            name=body.name, kind=kind, params=params, start=start, end=end,
             spacing=float(disc.body_spacing[i]), horizon=float(disc.body_horizon[i]),
             fracture=FractureParams(frac.threshold, frac.damage_resistance) if frac is not None else None))
     return tuple(out)

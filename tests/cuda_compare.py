@@ -64,7 +64,7 @@ SYNTHETIC = {
                                                                                "size": [0.3, 0.1, 0.2]}},
                              "material": {"model": "viscoelastic", "density": 1000.0, "lam": 2e5, "mu": 1e5,
                                           "relaxation_time": 0.002, "relaxing_fraction": 0.8, "break_stretch": 0.005,
-                                          "rebuild_distance": 0.05},
+                                          "rebuild_distance": 0.05, "bulk_modulus": 3e5},  # rebuilds in 6 steps
                              "velocity": [0.0, -20.0, 0.0]}]),
     # a block thrown at a moving mesh collider (a closed icosphere file, its signed distance sampled on a lattice)
     "mesh_collider": scene([{"name": "block", "geometry": BLOCK, "material": ELASTIC, "velocity": [0.0, 6.0, 0.0]}],

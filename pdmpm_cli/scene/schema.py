@@ -421,7 +421,9 @@ class Output(Strict):
     hdf5: bool = Field(True, description="Write one HDF5 file (run.h5) with every frame.")
     vtk: bool = Field(True, description="Write a VTU file per frame and a .pvd index for ParaView.")
     meshes: bool = Field(True, description="Shell and Voronoi bodies: write their moving surface or cell "
-                                           "polyhedra as one PLY file per frame (meshes/<body>_NNNNN.ply).")
+                                           "polyhedra as one PLY file per frame (meshes/<body>_NNNNN.ply); fluid "
+                                           "(viscoelastic) bodies their reconstructed surface "
+                                           "(meshes/<body>_surface_NNNNN.ply).")
     usd: bool = Field(False, description="Write one USD file (run.usd: metres, +y up, a time sample per frame) with "
                                          "each body's particles as points (width, velocities, the fields below as "
                                          "primvars) and its shell surface or Voronoi cells as an animated mesh, for "
