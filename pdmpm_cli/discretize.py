@@ -283,10 +283,10 @@ def pin_particles(pin, body, sample: BodySample, base_dir: Path) -> np.ndarray:
 
 
 def discretize(scene: Scene, base_dir: Path) -> Discretization:
-    """Check every body's size against the domain, sample it, build its bonds, and note where the particles will
-    not behave as the body was drawn. A problem with a shape is a SceneValueError naming its scene key."""
+    """Sample every body (its size already checked by `check_sizes`), build its bonds, sample the mesh colliders'
+    distances, and note where the particles will not behave as the body was drawn. A problem with a shape is a
+    SceneValueError naming its scene key."""
     try:
-        check_sizes(scene, base_dir)
         surfaces = {i: load_mesh_shape(c, base_dir) for i, c in enumerate(scene.colliders) if c.type == "mesh"}
         samples = {i: distance_samples(m, 0.5 * scene.grid.cell_size) for i, m in surfaces.items()}
         disc = sample_bodies(scene, base_dir)
