@@ -1,5 +1,5 @@
-"""Stability sweep: stiff, near-incompressible, stretched,
-compressed, impacting, shattering and cloth-like bodies and liquids, each run with the automatic time step and classified.
+"""Stability sweep: stiff, near-incompressible, stretched, compressed, impacting, shattering and cloth-like bodies
+and liquids, each run with the automatic time step and classified.
 
 Every case is a small scene dict (about 500 particles) built from `BASE`, plus what the scene language cannot say:
 an initial homogeneous stretch of the particles about their centre (`prestretch`) and impact speeds given in units
