@@ -5,6 +5,7 @@ import numpy as np
 
 from pdmpm_cli.engine.bonds import calibration_coefficients, reference_family_terms
 from pdmpm_cli.engine.colliders import BOUNDARY_CODES, BOX, CYLINDER, PLANE, ROW, SPHERE
+from pdmpm_cli.engine.fracture import critical_stretch
 from pdmpm_cli.discretize import Discretization
 from pdmpm_cli.engine.materials import MATERIALS, kind_of
 from pdmpm_cli.engine.model import BodyParams, FractureParams, Model
@@ -37,15 +38,26 @@ def collider_table(colliders) -> np.ndarray:
     return table
 
 
+def fracture_params(frac, kind: str, params, horizon: float) -> FractureParams | None:
+    """The body's eq. 21 threshold: as given, or from its fracture energy, P-wave modulus and horizon."""
+    if frac is None:
+        return None
+    if frac.energy is None:
+        return FractureParams(frac.threshold, frac.damage_resistance)
+    modulus = MATERIALS[kind].constants(params)["p_wave_modulus"]
+    return FractureParams(critical_stretch(frac.energy, modulus, horizon), frac.damage_resistance, frac.energy)
+
+
 def body_params(scene: Scene, disc: Discretization) -> tuple[BodyParams, ...]:
     out = []
     for i, (body, (start, end)) in enumerate(zip(scene.bodies, disc.body_ranges)):
         kind = kind_of(body.material)
-        frac = body.fracture
+        params = MATERIALS[kind].params(body.material)
+        horizon = float(disc.body_horizon[i])
         out.append(BodyParams(
-            name=body.name, kind=kind, params=MATERIALS[kind].params(body.material), start=start, end=end,
-            spacing=float(disc.body_spacing[i]), horizon=float(disc.body_horizon[i]),
-            fracture=FractureParams(frac.threshold, frac.damage_resistance) if frac is not None else None))
+            name=body.name, kind=kind, params=params, start=start, end=end,
+            spacing=float(disc.body_spacing[i]), horizon=horizon,
+            fracture=fracture_params(body.fracture, kind, params, horizon)))
     return tuple(out)
 
 

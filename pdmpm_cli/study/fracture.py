@@ -1,0 +1,179 @@
+"""Fracture energy of a bar pulled apart slowly: the energy balance against G_c times the crack's area.
+
+Grips (pins) at both ends of a notched bar move apart at a constant speed until it breaks at the notch. The energy
+the crack absorbed is what the grips put in minus what is still there, D = W - (strain + kinetic energy), and a
+body with `fracture.energy` G_c should absorb G_c A over the ligament's area A at every resolution (Griffith).
+
+The grips' work: a pinned particle is held at its velocity v_g whatever its forces, so in each step its grip gives
+it the impulse J_p = m_p (v_g - v*_p) - dt f_p, with v*_p the velocity G2P would have given it (the grid's, at its
+position at the start of the step) and f_p its bond force, which pins do not scatter (docs/method.md). This is
+exact: APIC transfers conserve momentum, so the free particles gain exactly sum_p J_p over a step. The grip does
+the work v_g . J_p.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from pdmpm_cli.engine.fracture import pieces
+from pdmpm_cli.engine.transfer import stencil
+from pdmpm_cli.study.sim import Sim
+
+RHO = 1000.0
+LAM = MU = 1e5  # M = 3e5 Pa, E = 2.5e5 Pa, wave speed 17.3 m/s
+SPEED = 0.02  # each grip [m/s]: 0.1 % of the wave speed
+LARGE = 0.05  # a piece is large above this share of the body's mass
+
+
+@dataclass(frozen=True)
+class Bar:
+    """Geometry of the bar [m]: length along x, square section, grips at both ends, a notch from the top."""
+
+    length: float = 0.48
+    section: float = 0.12
+    grip: float = 0.06  # length of each grip
+    notch_depth: float = 0.06  # from the top face (y), through the whole width (z)
+
+    def ligament(self) -> float:
+        """Area the crack must cross [m^2]."""
+        return self.section * (self.section - self.notch_depth)
+
+
+def bar_scene(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.6, fps: float = 200.0,
+              sampling: str = "relaxed") -> dict:
+    """The pulled bar at grid cell `cell` (particle spacing cell / 2, horizon 2 spacings) with G_c = `energy`.
+    The notch is one spacing wide, on the bar's middle."""
+    pad = 4 * cell
+    c = np.array([bar.length / 2 + pad, bar.section / 2 + pad, bar.section / 2 + pad])
+    hi = [bar.length + 2 * pad, bar.section + 2 * pad, bar.section + 2 * pad]
+    grip_x = bar.length / 2 - bar.grip / 2
+    grip = lambda sign: {"region": {"type": "box", "center": [c[0] + sign * grip_x, c[1], c[2]],
+                                    "size": [bar.grip, 2 * bar.section, 2 * bar.section]},
+                         "velocity": [sign * SPEED, 0.0, 0.0]}
+    notch = {"type": "box", "center": [c[0], c[1] + bar.section / 2, c[2]],
+             "size": [cell / 2, 2 * bar.notch_depth, 2 * bar.section]}
+    return {
+        "simulation": {"duration": duration, "fps": fps},
+        "grid": {"cell_size": cell, "domain": {"min": [0, 0, 0], "max": hi}},
+        "gravity": [0, 0, 0],
+        "bodies": [{
+            "name": "bar",
+            "geometry": {"mode": "cloud", "sampling": sampling,
+                         "shape": {"type": "box", "center": c.tolist(), "size": [bar.length, bar.section, bar.section]},
+                         "cutouts": [notch]},
+            "material": {"model": "elastic", "density": RHO, "lam": LAM, "mu": MU},
+            "fracture": {"energy": energy},
+            "pins": [grip(-1.0), grip(1.0)],
+        }],
+    }
+
+
+@njit(cache=True)
+def grip_work(grid, origin, inv_dx, dt, held, particle_x, pin_velocity, particle_mass, particle_force):
+    """Work [J] the pins do on particles `held` over the step just taken: sum_p v_g . J_p, with J_p = m_p (v_g - v*_p)
+    - dt f_p and v*_p the grid velocity at p's position at the start of the step, x_p - dt v_g."""
+    wx, wy, wz = np.empty(4), np.empty(4), np.empty(4)
+    x0 = np.empty((1, 3))
+    work = 0.0
+    for i in range(held.shape[0]):
+        p = held[i]
+        for a in range(3):
+            x0[0, a] = particle_x[p, a] - dt * pin_velocity[p, a]
+        fx, fy, fz, bx, by, bz = stencil(x0, 0, origin, inv_dx, wx, wy, wz)
+        for a in range(3):
+            v = 0.0
+            for ii in range(4):
+                for jj in range(4):
+                    for kk in range(4):
+                        v += wx[ii] * wy[jj] * wz[kk] * grid[bx + ii, by + jj, bz + kk, 1 + a]
+            impulse = particle_mass[p] * (pin_velocity[p, a] - v) - dt * particle_force[p, a]
+            work += pin_velocity[p, a] * impulse
+    return work
+
+
+@dataclass
+class Result:
+    cell: float
+    spacing: float
+    horizon: float
+    particles: int
+    threshold: float
+    expected: float  # G_c A [J]
+    large: int  # pieces over 5 % of the mass at the end
+    separation: float  # time the bar first came apart in two large pieces [s] (nan: never)
+    dissipated: float  # W - strain - kinetic at the end [J]
+    before: float  # the same just before the first bond broke [J]: the balance's own error
+    bond_area: float  # sum over broken bonds of their energy at the threshold, / G_c [m^2]
+    area: float  # the ligament [m^2]
+    seconds: float
+
+
+def critical_bond_energy(model, body: int, modulus: float, threshold: float) -> np.ndarray:
+    """Per directed bond, its share of the pair energy at stretch `threshold` [J]: c_p w V_p V_q M s0^2 / 2."""
+    b = model.bodies[body]
+    own = np.repeat(np.arange(len(model.bond_start) - 1), np.diff(model.bond_start))
+    q = model.bond_nbr
+    r = np.linalg.norm(model.rest_x[q] - model.rest_x[own], axis=1)
+    v = model.particle_volume
+    return model.particle_coef[own] * (1.0 - r / b.horizon) * v[own] * v[q] * 0.5 * modulus * threshold**2
+
+
+def crossing_energy(model, body: int, modulus: float, plane: float, lo, hi) -> float:
+    """Energy per unit area [J/m^2] of the bonds crossing the plane x = `plane` within the square lo <= (y, z) < hi,
+    all at the body's threshold: the discrete counterpart of the integral that sets the threshold from G_c."""
+    own = np.repeat(np.arange(len(model.bond_start) - 1), np.diff(model.bond_start))
+    x = model.rest_x
+    q = model.bond_nbr
+    cross = (x[own, 0] < plane) != (x[q, 0] < plane)
+    xi = x[q] - x[own]
+    t = (plane - x[own, 0]) / np.where(cross, xi[:, 0], 1.0)
+    yz = x[own, 1:] + t[:, None] * xi[:, 1:]
+    inside = cross & np.all((yz >= lo) & (yz < hi), axis=1)
+    energy = critical_bond_energy(model, body, modulus, model.bodies[body].fracture.threshold)
+    return float(energy[inside].sum()) / float(np.prod(np.asarray(hi) - np.asarray(lo)))
+
+
+def pull(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.6, after: float = 0.05,
+         sampling: str = "relaxed") -> Result:
+    """Pull the bar at `cell` until `after` seconds past its first separation (or `duration`); the energy balance."""
+    import time
+
+    t0 = time.perf_counter()
+    sim = Sim(bar_scene(cell, energy, bar, duration, sampling=sampling))
+    model, state, solver = sim.model, sim.state, sim.solver
+    b = model.bodies[0]
+    held = np.flatnonzero(model.pin_mask).astype(np.int64)
+    inv_dx = 1.0 / model.dx
+    work = [0.0]
+
+    def on_substep(st, dt):
+        work[0] += grip_work(st.grid, model.origin, inv_dx, dt, held, st.particle_x, model.pin_velocity,
+                             model.particle_mass, st.particle_force)
+
+    def balance() -> float:
+        return work[0] - solver.strain_energy(state) - solver.kinetic_energy(state)
+
+    mass = model.particle_mass
+    before = separation = np.nan
+    frame = sim.plan.frame_dt
+    end = duration
+    while state.time < end - 1e-12:
+        last = balance() if state.bonds_cut == 0 else None
+        solver.advance(state, min(state.time + frame, end), on_substep)
+        if last is not None and state.bonds_cut > 0:
+            before = last
+        if np.isnan(separation) and state.bonds_cut > 0:
+            labels = pieces(state.bond_start, state.bond_nbr, state.bond_active == 1, b.start, b.end)
+            share = np.bincount(labels, weights=mass[b.start:b.end]) / mass[b.start:b.end].sum()
+            if np.count_nonzero(share > LARGE) >= 2:
+                separation = state.time
+                end = min(duration, state.time + after)
+    labels = pieces(state.bond_start, state.bond_nbr, state.bond_active == 1, b.start, b.end)
+    share = np.bincount(labels, weights=mass[b.start:b.end]) / mass[b.start:b.end].sum()
+    crit = critical_bond_energy(model, 0, LAM + 2.0 * MU, b.fracture.threshold)
+    return Result(cell=cell, spacing=b.spacing, horizon=b.horizon, particles=b.end - b.start,
+                  threshold=b.fracture.threshold, expected=energy * bar.ligament(),
+                  large=int(np.count_nonzero(share > LARGE)), separation=separation, dissipated=balance(),
+                  before=before, bond_area=float(crit[state.bond_active == 0].sum()) / energy,
+                  area=bar.ligament(), seconds=time.perf_counter() - t0)

@@ -1,0 +1,75 @@
+"""Fracture from a fracture energy G_c: the threshold it gives, and the energy a crack absorbs against G_c."""
+
+import math
+
+import numpy as np
+import pytest
+
+from pdmpm_cli.engine.fracture import critical_stretch
+from pdmpm_cli.study.fracture import Bar, crossing_energy, pull
+from pdmpm_cli.study.sim import Sim
+from tests.test_cli import SMALL, pdmpm
+
+G_C = 2.0  # [J/m^2]
+M = 3e5  # P-wave modulus lam + 2 mu of the blocks below [Pa]
+
+
+def block(cell, horizon=2.0, size=0.32, sampling="relaxed"):
+    pad = 4 * cell
+    return {"simulation": {"duration": 0.01, "fps": 100},
+            "grid": {"cell_size": cell, "domain": {"min": [0, 0, 0], "max": [size + 2 * pad] * 3}},
+            "gravity": [0, 0, 0],
+            "bodies": [{"name": "block",
+                        "geometry": {"mode": "cloud", "sampling": sampling, "horizon": horizon,
+                                     "shape": {"type": "box", "center": [size / 2 + pad] * 3, "size": [size] * 3}},
+                        "material": {"model": "elastic", "density": 1000.0, "lam": 1e5, "mu": 1e5},
+                        "fracture": {"energy": G_C}}]}
+
+
+def test_critical_stretch_is_silling_askari_for_their_bonds():
+    """The integral behind critical_stretch, done for the PMB micropotential (c s^2 xi / 2 with
+    c = 18 K / (pi delta^4)) instead of ours, gives Silling & Askari's s0 = sqrt(5 G / (9 K delta)); for ours it gives
+    G = 3/4 M delta s0^2."""
+    delta, k, g = 0.02, 1e6, 3.0
+    xi = np.linspace(0.0, delta, 20001)
+    s0 = math.sqrt(5 * g / (9 * k * delta))
+    pmb = np.trapezoid(math.pi * xi**3 * (18 * k / (math.pi * delta**4)) * s0**2 * xi / 2, xi)
+    assert pmb == pytest.approx(g, rel=1e-6)
+    s0 = critical_stretch(g, M, delta)
+    ours = np.trapezoid(math.pi * xi**3 * 15 / (math.pi * delta**3) * M * (1 - xi / delta) * s0**2, xi)
+    assert ours == pytest.approx(g, rel=1e-6)
+
+
+@pytest.mark.parametrize("cell, horizon", [(0.04, 2.0), (0.02, 2.0), (0.04, 3.0)])
+def test_bonds_crossing_a_plane_hold_g_c_at_the_threshold(cell, horizon):
+    """On the discretisation itself (relaxed cloud, per-particle calibration), the bonds crossing a unit area of a
+    plane through the block, each at the threshold derived from G_c, hold G_c: within 10 % at 2 and 3 spacings,
+    both inside the block and over a whole cross-section (surface particles included)."""
+    size = 0.32
+    sim = Sim(block(cell, horizon, size))
+    b = sim.model.bodies[0]
+    assert b.fracture.threshold == pytest.approx(math.sqrt(4 * G_C / (3 * M * b.horizon)))
+    mid = sim.model.rest_x.mean(axis=0)
+    whole = crossing_energy(sim.model, 0, M, mid[0], mid[1:] - size / 2, mid[1:] + size / 2)
+    inner = crossing_energy(sim.model, 0, M, mid[0], mid[1:] - size / 2 + b.horizon, mid[1:] + size / 2 - b.horizon)
+    print(f"\ncell {cell}, horizon {b.horizon:.3f} m, threshold {b.fracture.threshold:.4g}: crossing energy / G_c "
+          f"{whole / G_C:.3f} (whole section), {inner / G_C:.3f} (interior)")
+    assert whole == pytest.approx(G_C, rel=0.10) and inner == pytest.approx(G_C, rel=0.10)
+
+
+def test_energy_or_threshold_exactly_one(tmp_path):
+    """fracture takes exactly one of threshold and energy; neither or both is bad input (exit 2, the key and the
+    fix); with energy, validate --explain prints the threshold it gives."""
+    path = tmp_path / "frac.yaml"
+    material = "material: {model: elastic, density: 1000, lam: 1e4, mu: 1e4}\n"
+    path.write_text(SMALL.replace(material, material + "    fracture: {energy: 2.0}\n"))
+    r = pdmpm("validate", path, "--explain")
+    assert r.returncode == 0, r.stderr
+    row = next(line for line in r.stdout.splitlines() if "fracture threshold" in line)
+    # lam = mu = 1e4: M = 3e4 Pa; h = 0.025 m, delta = 0.05 m
+    assert float(row.split("│")[-2]) == pytest.approx(math.sqrt(4 * 2.0 / (3 * 3e4 * 0.05)), rel=1e-3)
+    assert "fracture energy G_c [J/m^2]" in r.stdout
+    for extra in ("--set", "bodies.0.fracture.threshold=0.1"), ("--set", "bodies.0.fracture.energy=null"):
+        r = pdmpm("validate", path, *extra)
+        assert r.returncode == 2 and "Traceback" not in r.stderr
+        assert "bodies.0.fracture: give exactly one of threshold" in r.stderr and "J/m^2" in r.stderr
