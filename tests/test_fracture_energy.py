@@ -73,3 +73,30 @@ def test_energy_or_threshold_exactly_one(tmp_path):
         r = pdmpm("validate", path, *extra)
         assert r.returncode == 2 and "Traceback" not in r.stderr
         assert "bodies.0.fracture: give exactly one of threshold" in r.stderr and "J/m^2" in r.stderr
+
+
+def test_pulled_bar_breaks_at_its_notch_and_absorbs_at_least_g_c_a():
+    """A notched bar pulled apart slowly at 4 cm cells (pdmpm_cli/study/fracture.py): the energy balance closes to
+    10 % of the grips' work while nothing breaks (energy conservation), the bar comes apart in two, and it absorbs at
+    least G_c over the ligament, with broken bonds worth at least the ligament's area (Griffith: a crack across the
+    ligament costs G_c A). How far above it lies is the measured shortfall of the plane cuts (results.md)."""
+    r = pull(0.04, G_C, after=0.05)
+    print(f"\nD / G_c A {r.dissipated / r.expected:.2f} (cut bonds held {r.cut_energy / r.expected:.2f}), broken area / A "
+          f"{r.bond_area / r.area:.2f}, balance before breaking {r.before / r.work_before:.3f} of W, separation "
+          f"{r.separation:.3f} s, {r.large} large pieces, {r.seconds:.0f} s")
+    assert abs(r.before) < 0.10 * r.work_before
+    assert r.large == 2 and r.separation < 0.3
+    assert r.dissipated > 0.85 * r.expected and r.bond_area > 0.85 * r.area
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="the plane cuts break several times the ligament's bonds, each below its "
+                   "critical energy, and the transfers damp the released elastic energy: D is 3-4 G_c A "
+                   "(docs/results.md, 'Fracture energy')")
+@pytest.mark.parametrize("cell", [0.04, 0.03, 0.02])
+def test_pulled_bar_absorbs_g_c_a_at_three_resolutions(cell):
+    """The issue's target: the bar absorbs G_c A within 15 % at every resolution (energy balance)."""
+    r = pull(cell, G_C)
+    print(f"\ncell {cell}: D / G_c A {r.dissipated / r.expected:.2f}, broken area / A {r.bond_area / r.area:.2f}")
+    assert r.large == 2
+    assert r.dissipated == pytest.approx(r.expected, rel=0.15)

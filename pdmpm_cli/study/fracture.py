@@ -11,6 +11,7 @@ exact: APIC transfers conserve momentum, so the free particles gain exactly sum_
 the work v_g . J_p.
 """
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +25,7 @@ RHO = 1000.0
 LAM = MU = 1e5  # M = 3e5 Pa, E = 2.5e5 Pa, wave speed 17.3 m/s
 SPEED = 0.02  # each grip [m/s]: 0.1 % of the wave speed
 LARGE = 0.05  # a piece is large above this share of the body's mass
+GRIP = 0.1  # the plate's grips hold this share of its height at the top and at the bottom
 
 
 @dataclass(frozen=True)
@@ -103,14 +105,17 @@ class Result:
     large: int  # pieces over 5 % of the mass at the end
     separation: float  # time the bar first came apart in two large pieces [s] (nan: never)
     dissipated: float  # W - strain - kinetic at the end [J]
-    before: float  # the same just before the first bond broke [J]: the balance's own error
+    before: float  # the same just before the first bond broke [J]: the balance's own error while nothing breaks
+    work_before: float  # W then [J]
+    cut_energy: float  # energy the bonds held when they were cut, (M/2) s^2 per direction [J]
     bond_area: float  # sum over broken bonds of their energy at the threshold, / G_c [m^2]
     area: float  # the ligament [m^2]
     seconds: float
 
 
 def critical_bond_energy(model, body: int, modulus: float, threshold: float) -> np.ndarray:
-    """Per directed bond, its share of the pair energy at stretch `threshold` [J]: c_p w V_p V_q M s0^2 / 2."""
+    """Per directed bond, the energy it holds at stretch `threshold` under a homogeneous stretch [J]:
+    c_p w V_p V_q M s^2 / 2 (docs/method.md, 'Fracture energy')."""
     b = model.bodies[body]
     own = np.repeat(np.arange(len(model.bond_start) - 1), np.diff(model.bond_start))
     q = model.bond_nbr
@@ -134,46 +139,104 @@ def crossing_energy(model, body: int, modulus: float, plane: float, lo, hi) -> f
     return float(energy[inside].sum()) / float(np.prod(np.asarray(hi) - np.asarray(lo)))
 
 
-def pull(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.6, after: float = 0.05,
-         sampling: str = "relaxed") -> Result:
-    """Pull the bar at `cell` until `after` seconds past its first separation (or `duration`); the energy balance."""
-    import time
+def large_pieces(state, model, body: int = 0) -> int:
+    """Pieces of the body over LARGE of its mass."""
+    b = model.bodies[body]
+    labels = pieces(state.bond_start, state.bond_nbr, state.bond_active == 1, b.start, b.end)
+    mass = model.particle_mass[b.start:b.end]
+    return int(np.count_nonzero(np.bincount(labels, weights=mass) > LARGE * mass.sum()))
 
+
+def pull(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.4, after: float = 0.1,
+         sampling: str = "relaxed", damage_resistance: float = 1.0) -> Result:
+    """Pull the bar at `cell` until `after` seconds past its first separation (or `duration`); the energy balance."""
     t0 = time.perf_counter()
-    sim = Sim(bar_scene(cell, energy, bar, duration, sampling=sampling))
+    scene = bar_scene(cell, energy, bar, duration, sampling=sampling)
+    scene["bodies"][0]["fracture"]["damage_resistance"] = damage_resistance
+    sim = Sim(scene)
     model, state, solver = sim.model, sim.state, sim.solver
     b = model.bodies[0]
+    modulus = LAM + 2.0 * MU
     held = np.flatnonzero(model.pin_mask).astype(np.int64)
-    inv_dx = 1.0 / model.dx
-    work = [0.0]
+    own = np.repeat(np.arange(len(model.bond_start) - 1), np.diff(model.bond_start))
+    rest = np.linalg.norm(model.rest_x[model.bond_nbr] - model.rest_x[own], axis=1)
+    weight = critical_bond_energy(model, 0, modulus, 1.0)  # energy per directed bond / s^2
+    tally = {"work": 0.0, "cut": 0.0, "bonds_cut": 0, "x": state.particle_x.copy(), "active": state.bond_active.copy()}
 
     def on_substep(st, dt):
-        work[0] += grip_work(st.grid, model.origin, inv_dx, dt, held, st.particle_x, model.pin_velocity,
-                             model.particle_mass, st.particle_force)
+        tally["work"] += grip_work(st.grid, model.origin, 1.0 / model.dx, dt, held, st.particle_x,
+                                   model.pin_velocity, model.particle_mass, st.particle_force)
+        if st.bonds_cut != tally["bonds_cut"]:  # bonds cut this step: the energy they held (positions before it)
+            new = (tally["active"] == 1) & (st.bond_active == 0)
+            x = tally["x"]
+            s = np.linalg.norm(x[model.bond_nbr[new]] - x[own[new]], axis=1) / rest[new] - 1.0
+            tally["cut"] += float(weight[new] @ s**2)
+            tally["active"][:] = st.bond_active
+            tally["bonds_cut"] = st.bonds_cut
+        tally["x"][:] = st.particle_x
 
     def balance() -> float:
-        return work[0] - solver.strain_energy(state) - solver.kinetic_energy(state)
+        return tally["work"] - solver.strain_energy(state) - solver.kinetic_energy(state)
 
-    mass = model.particle_mass
-    before = separation = np.nan
-    frame = sim.plan.frame_dt
+    before = work_before = separation = np.nan
     end = duration
     while state.time < end - 1e-12:
-        last = balance() if state.bonds_cut == 0 else None
-        solver.advance(state, min(state.time + frame, end), on_substep)
+        last = (balance(), tally["work"]) if state.bonds_cut == 0 else None
+        solver.advance(state, min(state.time + sim.plan.frame_dt, end), on_substep)
         if last is not None and state.bonds_cut > 0:
-            before = last
-        if np.isnan(separation) and state.bonds_cut > 0:
-            labels = pieces(state.bond_start, state.bond_nbr, state.bond_active == 1, b.start, b.end)
-            share = np.bincount(labels, weights=mass[b.start:b.end]) / mass[b.start:b.end].sum()
-            if np.count_nonzero(share > LARGE) >= 2:
-                separation = state.time
-                end = min(duration, state.time + after)
-    labels = pieces(state.bond_start, state.bond_nbr, state.bond_active == 1, b.start, b.end)
-    share = np.bincount(labels, weights=mass[b.start:b.end]) / mass[b.start:b.end].sum()
-    crit = critical_bond_energy(model, 0, LAM + 2.0 * MU, b.fracture.threshold)
+            before, work_before = last
+        if np.isnan(separation) and state.bonds_cut > 0 and large_pieces(state, model) >= 2:
+            separation = state.time
+            end = min(duration, state.time + after)
+    crit = critical_bond_energy(model, 0, modulus, b.fracture.threshold)
     return Result(cell=cell, spacing=b.spacing, horizon=b.horizon, particles=b.end - b.start,
-                  threshold=b.fracture.threshold, expected=energy * bar.ligament(),
-                  large=int(np.count_nonzero(share > LARGE)), separation=separation, dissipated=balance(),
-                  before=before, bond_area=float(crit[state.bond_active == 0].sum()) / energy,
+                  threshold=b.fracture.threshold, expected=energy * bar.ligament(), large=large_pieces(state, model),
+                  separation=separation, dissipated=balance(), before=before, work_before=work_before,
+                  cut_energy=tally["cut"], bond_area=float(crit[state.bond_active == 0].sum()) / energy,
                   area=bar.ligament(), seconds=time.perf_counter() - t0)
+
+
+def plate_scene(cell: float, energy: float, size: float = 0.48, thickness: float = 0.06, notch: float = 0.12,
+                duration: float = 0.3, speed: float = SPEED) -> dict:
+    """A single-edge-notched plate in mode I: grips along its top and bottom edges pull it apart in y; the notch,
+    half a cell wide, runs in x from the left edge to `notch` at mid-height."""
+    pad = 4 * cell
+    c = [size / 2 + pad, size / 2 + pad, thickness / 2 + pad]
+    grip = GRIP * size
+    pins = [{"region": {"type": "box", "center": [c[0], c[1] + sign * (size - grip) / 2, c[2]],
+                        "size": [2 * size, grip, 2 * thickness]}, "velocity": [0.0, sign * speed, 0.0]}
+            for sign in (-1.0, 1.0)]
+    cut = {"type": "box", "center": [c[0] - size / 2, c[1], c[2]], "size": [2 * notch, cell / 2, 2 * thickness]}
+    return {
+        "simulation": {"duration": duration, "fps": 200.0},
+        "grid": {"cell_size": cell, "domain": {"min": [0, 0, 0], "max": [size + 2 * pad, size + 2 * pad,
+                                                                           thickness + 2 * pad]}},
+        "gravity": [0, 0, 0],
+        "bodies": [{
+            "name": "plate",
+            "geometry": {"mode": "cloud", "shape": {"type": "box", "center": c, "size": [size, size, thickness]},
+                         "cutouts": [cut]},
+            "material": {"model": "elastic", "density": RHO, "lam": LAM, "mu": MU},
+            "fracture": {"energy": energy},
+            "pins": pins,
+        }],
+    }
+
+
+def damage_band(model, state, body: int = 0, grip: float = 0.0) -> dict:
+    """Where a mode-I crack's damage lies, among the particles more than `grip` + a horizon from the top and bottom
+    faces (damage at the grips' edges is counted apart, as `at_grips`): the damaged particles' rest distance from
+    the notch's plane (y) as percentiles 50 / 90 / 100 [m], and how far in x the damage reached [m]."""
+    b = model.bodies[body]
+    x0 = model.rest_x[b.start:b.end]
+    lo, hi = x0[:, 1].min(), x0[:, 1].max()
+    mid = 0.5 * (lo + hi)
+    damaged = state.particle_damage[b.start:b.end] > 0
+    inner = np.abs(x0[:, 1] - mid) < 0.5 * (hi - lo) - grip - b.horizon
+    hit = damaged & inner
+    out = {"damaged": int(hit.sum()), "at_grips": int((damaged & ~inner).sum())}
+    if not hit.any():
+        return out | {"p50": 0.0, "p90": 0.0, "max": 0.0, "reach": 0.0}
+    p50, p90, top = np.percentile(np.abs(x0[hit, 1] - mid), [50, 90, 100])
+    return out | {"p50": float(p50), "p90": float(p90), "max": float(top),
+                  "reach": float(x0[hit, 0].max() - x0[:, 0].min())}
