@@ -1,10 +1,12 @@
 """Validated scene + discretisation -> the engine's Model: typed parameters and packed arrays, so the engine never
 reads a pydantic object."""
 
+import math
+
 import numpy as np
 
 from pdmpm_cli.engine.bonds import calibration_coefficients, reference_family_terms
-from pdmpm_cli.engine.colliders import BOUNDARY_CODES, BOX, CYLINDER, PLANE, ROW, SPHERE
+from pdmpm_cli.engine.colliders import BOUNDARY_CODES, BOX, CYLINDER, MESH, PLANE, ROW, SPHERE
 from pdmpm_cli.engine.fracture import critical_stretch
 from pdmpm_cli.discretize import Discretization
 from pdmpm_cli.engine.materials import MATERIALS, kind_of
@@ -17,11 +19,14 @@ def _unit(v):
     return v / np.linalg.norm(v)
 
 
-def collider_table(colliders) -> np.ndarray:
-    """Pack validated scene colliders into the (n, ROW) table the kernels read (layout: engine.colliders)."""
-    table = np.zeros((len(colliders), ROW))
+def collider_table(colliders, samples=None) -> np.ndarray:
+    """Pack validated scene colliders into the table the kernels read (layout: engine.colliders): one header row
+    each, and after a mesh collider's its signed distance samples (`samples`: collider index -> DistanceSamples)."""
+    rows = []
     for i, c in enumerate(colliders):
-        row = table[i]
+        row = np.zeros(ROW)
+        rows.append(row[None])
+        row[15] = 1
         row[9] = -1.0 if getattr(c, "inside_out", False) else 1.0
         row[10:13] = c.velocity
         row[13] = BOUNDARY_CODES[c.boundary]
@@ -32,10 +37,35 @@ def collider_table(colliders) -> np.ndarray:
             row[0], row[1:4], row[4:7] = BOX, c.center, 0.5 * np.asarray(c.size)
         elif c.type == "sphere":
             row[0], row[1:4], row[7] = SPHERE, c.center, c.radius
-        else:
+        elif c.type == "cylinder":
             row[0], row[1:4], row[4:7] = CYLINDER, c.center, _unit(c.axis)
             row[7], row[8] = c.radius, 0.5 * c.height
-    return table
+        else:
+            d = samples[i]
+            data = np.zeros(-(-d.values.size // ROW) * ROW)
+            data[:d.values.size] = d.values.ravel()
+            rows.append(data.reshape(-1, ROW))
+            row[0], row[15], row[16:19], row[19:22], row[22] = MESH, 1 + len(rows[-1]), d.values.shape, d.origin, \
+                d.spacing
+    return np.concatenate(rows) if rows else np.zeros((0, ROW))
+
+
+def flow_speed(scene: Scene, x: np.ndarray, body) -> float:
+    """Largest speed a body can be expected to reach [m/s]: its initial speed (spin included) raised by a fall from
+    its highest particle to the domain's lowest point, or the colliders' or the wind's speed if larger."""
+    g = np.asarray(scene.gravity, dtype=np.float64)
+    centre = x.mean(axis=0) if len(x) else np.zeros(3)
+    spin = np.linalg.norm(body.angular_velocity) * (np.linalg.norm(x - centre, axis=1).max() if len(x) else 0.0)
+    v0 = float(np.linalg.norm(body.velocity)) + float(spin)
+    fall = 0.0
+    if np.any(g) and len(x):
+        down = g / np.linalg.norm(g)
+        lo, hi = np.asarray(scene.grid.domain.min), np.asarray(scene.grid.domain.max)
+        fall = max(0.0, float(np.where(down > 0, hi, lo) @ down - (x @ down).min()))
+    speeds = [math.sqrt(v0 * v0 + 2.0 * float(np.linalg.norm(g)) * fall)]
+    speeds += [float(np.linalg.norm(c.velocity)) for c in scene.colliders]
+    speeds += [float(np.linalg.norm(scene.wind.velocity))] if scene.wind else []
+    return max(speeds)
 
 
 def fracture_params(frac, kind: str, params, horizon: float) -> FractureParams | None:
@@ -53,6 +83,8 @@ def body_params(scene: Scene, disc: Discretization) -> tuple[BodyParams, ...]:
     for i, (body, (start, end)) in enumerate(zip(scene.bodies, disc.body_ranges)):
         kind = kind_of(body.material)
         params = MATERIALS[kind].params(body.material)
+        if MATERIALS[kind].with_flow_speed is not None:
+            params = MATERIALS[kind].with_flow_speed(params, flow_speed(scene, disc.rest_x[start:end], body))
         horizon = float(disc.body_horizon[i])
         out.append(BodyParams(
             name=body.name, kind=kind, params=params, start=start, end=end,
@@ -76,7 +108,7 @@ def build_model(scene: Scene, disc: Discretization) -> Model:
         particle_coef=calibration_coefficients(omega, disc.body, disc.body_horizon), particle_omega=omega,
         pin_mask=disc.pin_mask, pin_velocity=disc.pin_velocity, pin_stop=disc.pin_stop,
         bodies=body_params(scene, disc),
-        colliders=collider_table(scene.colliders), gravity=np.asarray(scene.gravity, dtype=np.float64),
+        colliders=collider_table(scene.colliders, disc.collider_samples), gravity=np.asarray(scene.gravity, dtype=np.float64),
         wind_velocity=np.asarray(scene.wind.velocity if scene.wind else (0.0, 0.0, 0.0), dtype=np.float64),
         wind_drag=scene.wind.drag if scene.wind else 0.0,
         origin=lo, dx=g.cell_size, grid_shape=tuple(int(c) + 1 for c in cells),

@@ -14,6 +14,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from pdmpm_cli.errors import InputError
 
 # Bytes per particle and per bond, read off the arrays each phase holds (and checked against peak RSS of
@@ -185,15 +187,22 @@ def check_memory(scene, base_dir: Path, where: str, available: int | None = None
         f"factor {factor:.3g} on every body), lower geometry.horizon, or shrink the bodies")
 
 
+def field_bytes(name: str) -> int:
+    """Bytes per particle of an output field: from its declaration (engine.fields, a material's fields), else one
+    float64 (particle_speed and the materials' computed outputs are one value per particle)."""
+    from pdmpm_cli.engine.materials import declared_fields
+
+    field = declared_fields().get(name)
+    return 8 if field is None else int(np.prod(field.tail, dtype=int)) * np.dtype(field.dtype).itemsize
+
+
 def output_bytes(prep, frames: int | None = None) -> float:
     """Bytes the run writes in `frames` frames (all of the plan's by default), before compression: positions and
     the scene's fields in run.h5, the same with the static fields in each VTU, and the moving meshes in run.h5 and
     as PLY files."""
     scene, plan = prep.scene, prep.plan
     frames = plan.frames + 1 if frames is None else frames
-    per_particle = {"particle_v": 24, "particle_speed": 8, "particle_C": 72, "particle_force": 24,
-                    "particle_Fbar": 72, "particle_damage": 8, "particle_plastic_strain": 8}
-    fields = 24 + sum(per_particle[f] for f in scene.output.fields)
+    fields = 24 + sum(field_bytes(f) for f in scene.output.fields)
     vertices = sum(len(m.vertices) for m in prep.disc.meshes)
     h5 = (fields * plan.particles + 24 * vertices) if scene.output.hdf5 else 0
     vtk = (fields + 44) * plan.particles if scene.output.vtk else 0  # + body, volume, mass, bonds, X

@@ -12,7 +12,7 @@ import numpy as np
 
 from pdmpm_cli import budget, checkpoint
 from pdmpm_cli.assemble import build_model
-from pdmpm_cli.discretize import Discretization, discretize
+from pdmpm_cli.discretize import Discretization, check_sizes, discretize, keyed
 from pdmpm_cli.engine.embedding import mesh_positions
 from pdmpm_cli.engine.materials import MATERIALS
 from pdmpm_cli.engine.model import Model
@@ -22,6 +22,7 @@ from pdmpm_cli.engine.state import State
 from pdmpm_cli.engine.transfer import WALL
 from pdmpm_cli.errors import InputError, SceneValueError
 from pdmpm_cli.io.lock import LOCK_NAME, OutputLock
+from pdmpm_cli.io.surface import FluidBody, FluidSurfaces, FluidSurfaceWriter
 from pdmpm_cli.plan import make_plan
 from pdmpm_cli.scene.loader import load_scene, locate
 from pdmpm_cli.scene.schema import Scene
@@ -71,8 +72,13 @@ def prepare_resume(out: Path, scene=None, overrides=(), variant: str | None = No
 def prepare_scene(scene: Scene, path: Path, text: str = "") -> Prepared:
     """Discretise a validated scene (relative mesh paths resolve beside `path`) and make the Plan; a scene whose
     estimated memory exceeds what the machine has free is refused before sampling."""
-    budget.check_memory(scene, Path(path).parent, str(path))
-    disc = discretize(scene, Path(path).parent)
+    base = Path(path).parent
+    try:  # sizes first: a body too large for the domain is named as such, not as a memory estimate
+        check_sizes(scene, base)
+        budget.check_memory(scene, base, str(path))
+    except SceneValueError as e:
+        raise keyed(e, scene) from None
+    disc = discretize(scene, base)
     model = build_model(scene, disc)
     return Prepared(Path(path), scene, text, disc, model, make_plan(scene, disc, model))
 
@@ -148,10 +154,21 @@ def prepare_output_dir(out: Path, overwrite: bool):
                              f"choose another folder with --out")
         for name in ("run.h5", "run.usd"):
             (out / name).unlink(missing_ok=True)
-        for sub in ("vtk", "meshes", checkpoint.FOLDER):
+        for sub in ("vtk", "meshes", "colliders", checkpoint.FOLDER):
             if (out / sub).is_dir():
                 for f in (out / sub).iterdir():
                     f.unlink()
+
+
+def write_collider_meshes(prep: Prepared, out: Path) -> None:
+    """Each mesh collider's surface as placed at time 0, colliders/collider_<index>.ply (it then moves with its
+    velocity): for `pdmpm render` and for compositing in other tools."""
+    from pdmpm_cli.io.ply import write_ply
+
+    if prep.disc.collider_meshes:
+        (out / "colliders").mkdir(exist_ok=True)
+    for i, mesh in prep.disc.collider_meshes.items():
+        write_ply(out / "colliders" / f"collider_{i}.ply", mesh.vertices, mesh.triangles)
 
 
 def _writers(prep: Prepared, out: Path, static: dict, keep: int) -> list:
@@ -176,18 +193,30 @@ def _writers(prep: Prepared, out: Path, static: dict, keep: int) -> list:
     if meshes and scene.output.meshes:
         writers.append(MeshSeriesWriter.reopen(out / "meshes", meshes, keep) if keep else
                        MeshSeriesWriter(out / "meshes", meshes))
+    surfaces = fluid_surfaces(prep)
+    if surfaces.bodies and scene.output.meshes:
+        writers.append(FluidSurfaceWriter.reopen(out / "meshes", surfaces, keep) if keep else
+                       FluidSurfaceWriter(out / "meshes", surfaces))
     if scene.output.usd:
-        writers.append(_usd_writer(prep, out, keep))
+        writers.append(_usd_writer(prep, out, keep, surfaces))
     return writers
 
 
-def _usd_writer(prep: Prepared, out: Path, keep: int):
-    """The run's USD stage (io.usd): each body's particle range, width (its spacing) and embedded meshes."""
+def fluid_surfaces(prep: Prepared) -> FluidSurfaces:
+    """The fluid (viscoelastic) bodies whose reconstructed surfaces the exporters write each frame."""
+    m = prep.model
+    return FluidSurfaces([FluidBody(b.name, b.start, b.end, b.spacing, m.particle_volume[b.start:b.end])
+                          for b in m.bodies if b.kind == "viscoelastic"])
+
+
+def _usd_writer(prep: Prepared, out: Path, keep: int, surfaces: FluidSurfaces):
+    """The run's USD stage (io.usd): each body's particle range, width (its spacing), embedded meshes and fluid
+    surfaces."""
     from pdmpm_cli.io import usd
 
     bodies = [usd.UsdBody(b.name, s, e, float(h)) for b, (s, e), h in
               zip(prep.scene.bodies, prep.disc.body_ranges, prep.disc.body_spacing)]
-    layout = {"fps": 1.0 / prep.plan.frame_dt, "bodies": bodies, "meshes": prep.disc.meshes}
+    layout = {"fps": 1.0 / prep.plan.frame_dt, "bodies": bodies, "meshes": prep.disc.meshes, "surfaces": surfaces}
     path = out / usd.FILE_NAME
     return usd.UsdWriter.reopen(path, frames=keep, **layout) if keep else usd.UsdWriter(path, **layout)
 
@@ -209,6 +238,7 @@ def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwr
     with OutputLock(out):
         if resume is None:
             prepare_output_dir(out, overwrite)
+            write_collider_meshes(prep, out)
         for folder in (out, out / "vtk", out / "meshes", out / checkpoint.FOLDER):
             remove_temporaries(folder)
         state = initial_state(model, plan, prep.disc.velocity, prep.disc.velocity_gradient)

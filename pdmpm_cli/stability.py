@@ -25,7 +25,9 @@ below the limit (docs/method.md, 'Time step').
 
 import copy
 import dataclasses
+import functools
 import math
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -203,7 +205,36 @@ def discretisation_cases(vib, gravity) -> list[Case]:
     out.append(Case("resting_floor", "boundary", "on the floor, gravity", "a body touching a collider from the start",
                     {"bodies": [_body()], "colliders": [{**FLOOR, "point": [0, 0.5, 0]}], "gravity": gravity},
                     steps=1000))
+    liquid = {"model": "viscoelastic", "density": 1000.0, "lam": 5e3, "mu": 500.0, "relaxation_time": 0.05,
+              "relaxing_fraction": 1.0, "break_stretch": 0.03}
+    blob = {"mode": "cloud", "spacing": 0.0125, "shape": {"type": "sphere", "center": [0.6, 0.75, 0.6],
+                                                          "radius": 0.06}}
+    out.append(Case("mesh_bowl", "boundary", "liquid into a mesh bowl", "a closed mesh file (signed distance) holds "
+                    "a liquid", {"bodies": [{**_body(material=liquid), "geometry": blob}], "gravity": gravity,
+                                 "colliders": [{"type": "mesh", "path": MESH_FILES[0], "translate": [0.6, 0.6, 0.6],
+                                                "boundary": "slip", "friction": 0.2}]}, steps=1000))
+    out.append(Case("mesh_pusher", "boundary", "mesh box at 0.5 m/s", "a moving mesh collider meets a block "
+                    "(1 m/s towards it) and throws it back", {"bodies": [_body(velocity=[-1.0, 0.0, 0.0])],
+                    "colliders": [{"type": "mesh", "path": MESH_FILES[1], "translate": [0.35, 0.6, 0.6],
+                                   "velocity": [0.5, 0.0, 0.0]}]}, steps=300))
     return out
+
+
+MESH_FILES = ("bowl.ply", "pusher.ply")  # written by mesh_folder: a bowl (r 0.2 m, wall 4 cm), a 0.2 m box
+
+
+@functools.cache
+def mesh_folder() -> Path:
+    """A scratch folder with the sweep's mesh files, beside which the cases' scenes are prepared."""
+    from pdmpm_cli.geometry.primitive_surfaces import bowl_surface, primitive_surface
+    from pdmpm_cli.io.ply import write_ply
+
+    folder = Path(tempfile.mkdtemp(prefix="pdmpm-stability-"))
+    for name, mesh in zip(MESH_FILES, (bowl_surface(0.2, 0.16, 0.015),
+                                       primitive_surface("box", center=(0, 0, 0), R=None, edge=0.05,
+                                                         size=(0.2, 0.2, 0.2)))):
+        write_ply(folder / name, mesh.vertices, mesh.triangles)
+    return folder
 
 
 QUICK = ("stiff_1e3", "stiff_1e9", "cfl_1_bond_1", "cfl_1.2", "lam_mu_1000", "visco_lam_mu_1000", "stretch_3x",
@@ -246,7 +277,7 @@ class Prepared:
     bound: str  # which limit dt_pred is: grid or tunnel
 
 
-def prepare_case(case: Case, path: Path = Path("stability.yaml")) -> Prepared:
+def prepare_case(case: Case, path: Path | None = None) -> Prepared:
     """Validate and discretise the case's scene (impact speeds are set from the at-rest automatic step), apply
     the prestretch and predict its stability limits (engine.spectrum)."""
     from pdmpm_cli.engine.spectrum import critical_steps
@@ -254,6 +285,7 @@ def prepare_case(case: Case, path: Path = Path("stability.yaml")) -> Prepared:
     from pdmpm_cli.scene.schema import Scene
 
     scene_dict = merge(BASE, case.changes)
+    path = path or mesh_folder() / "stability.yaml"  # mesh colliders' files resolve beside it
     prep = prepare_scene(Scene.model_validate(scene_dict), path)
     if case.impact:
         speed = case.impact * prep.plan.cell_size / prep.plan.dt_max

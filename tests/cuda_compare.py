@@ -10,8 +10,10 @@ line per case: the largest differences of positions, velocities and APIC matrice
 largest speed, of every other State array relative to its largest value, and what the case exercised.
 """
 
+import functools
 import json
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +21,7 @@ import numpy as np
 from pdmpm_cli.engine.solver import Solver, initial_state
 from pdmpm_cli.runner import Prepared, prepare, prepare_scene
 from pdmpm_cli.scene.schema import Scene
+from tests.mesh_corpus import icosphere, write_off
 
 ROOT = Path(__file__).resolve().parents[1]
 BLOCK = {"mode": "cloud", "sampling": "lattice", "spacing": 0.05,
@@ -61,8 +64,12 @@ SYNTHETIC = {
                                                                                "size": [0.3, 0.1, 0.2]}},
                              "material": {"model": "viscoelastic", "density": 1000.0, "lam": 2e5, "mu": 1e5,
                                           "relaxation_time": 0.002, "relaxing_fraction": 0.8, "break_stretch": 0.005,
-                                          "rebuild_distance": 0.05},
+                                          "rebuild_distance": 0.05, "bulk_modulus": 3e5},  # rebuilds in 6 steps
                              "velocity": [0.0, -20.0, 0.0]}]),
+    # a block thrown at a moving mesh collider (a closed icosphere file, its signed distance sampled on a lattice)
+    "mesh_collider": scene([{"name": "block", "geometry": BLOCK, "material": ELASTIC, "velocity": [0.0, 6.0, 0.0]}],
+                           colliders=[{"type": "mesh", "path": "ball.off", "translate": [0.52, 0.5, 0.5],
+                                       "velocity": [0.0, -1.0, 0.0], "boundary": "slip", "friction": 0.3}]),
 }
 
 # Every bundled scene at a tiny resolution: its materials, geometry modes, pins, colliders and fracture as shipped.
@@ -78,13 +85,21 @@ BUNDLED = {
     "bunnies_plastic": ("grid.cell_size=0.03", "bodies.0.geometry.spacing=0.03", "bodies.1.geometry.spacing=0.03"),
     # thrown at 4x its speed so that bonds break within the few steps compared
     "wall_break": ("grid.cell_size=0.04", "bodies.0.geometry.spacing=0.04", "bodies.1.geometry.spacing=0.04",
-                   "bodies.1.velocity=[24.0,0.0,0.0]", "bodies.0.fracture.threshold=0.002"),
+                   "bodies.1.velocity=[24.0,0.0,0.0]", "bodies.0.fracture.threshold=0.0005"),
     "beams": ("grid.cell_size=0.075", *(f"bodies.{i}.geometry.spacing=0.075" for i in range(3)),
               *(f"bodies.{i}.geometry.layers=1" for i in range(3))),
     "honey": ("grid.cell_size=0.1", "bodies.0.geometry.spacing=0.08"),
     "cream_pie": ("grid.cell_size=0.06", "bodies.0.geometry.spacing=0.06"),
 }
 CASES = [*SYNTHETIC, *BUNDLED]
+
+
+@functools.cache
+def mesh_folder() -> Path:
+    """A scratch folder holding the synthetic cases' mesh files (relative paths resolve there)."""
+    folder = Path(tempfile.mkdtemp(prefix="pdmpm-cuda-compare-"))
+    write_off(folder / "ball.off", *icosphere(2, 0.12))
+    return folder
 
 
 def prepared(name: str, backend: str) -> Prepared:
@@ -94,7 +109,7 @@ def prepared(name: str, backend: str) -> Prepared:
     if name in SYNTHETIC:
         base = SYNTHETIC[name]
         return prepare_scene(Scene.model_validate({**base, "simulation": {**base["simulation"], "backend": backend}}),
-                             Path(f"{backend}.yaml"))
+                             mesh_folder() / f"{backend}.yaml")
     return prepare(ROOT / "scenes" / f"{name}.yaml", [*BUNDLED[name], f"simulation.backend={backend}"])
 
 

@@ -155,6 +155,14 @@ def icosphere(subdivisions: int, radius: float = 1.0):
     return radius * np.array(V), np.array(faces, dtype=np.int64)
 
 
+def bowl(outer=0.2, inner=0.16, edge=0.02):
+    """A hemispherical bowl as a closed solid, rim at y = 0, opening upwards (geometry.primitive_surfaces)."""
+    from pdmpm_cli.geometry.primitive_surfaces import bowl_surface
+
+    mesh = bowl_surface(outer, inner, edge)
+    return mesh.vertices, mesh.triangles
+
+
 def torus(R=1.0, r=0.35, nu=48, nv=24):
     """A torus about the z axis, of outward triangles (each grid quad split in two: the quads are not planar)."""
     u, v = np.meshgrid(np.arange(nu) * 2 * np.pi / nu, np.arange(nv) * 2 * np.pi / nv, indexing="ij")

@@ -185,9 +185,9 @@ CASES: dict[str, Case] = {
                        absolute={"large_pieces": 1.0, "dust_share": 0.02}),
     "honey": Case("honey.yaml", ("grid.cell_size=0.1", "bodies.0.geometry.shape.radius=0.12",
                                  "simulation.duration=2.0"),
-                  pile, {"spread_ratio": 0.1, "height_mm": 0.1}, "bodies.0.material.relaxation_time=1.0"),
+                  pile, {"spread_ratio": 0.1, "height_mm": 0.1}, "bodies.0.material.bulk_modulus=2e4"),
     "cream_pie": Case("cream_pie.yaml", ("grid.cell_size=0.06", "simulation.duration=0.5"), splat,
-                      {"spread_ratio": 0.05, "thickness_ratio": 0.1}, "bodies.0.material.relaxing_fraction=1.0"),
+                      {"spread_ratio": 0.05, "thickness_ratio": 0.1}, "bodies.0.material.bulk_modulus=2e4"),
 }
 
 

@@ -18,9 +18,9 @@ def table(*colliders):
     return collider_table(scene.colliders)
 
 
-def sdf(row, x, t=0.0):
+def sdf(packed, x, t=0.0):
     n = np.zeros(3)
-    return signed_distance(row, *map(float, x), t, n), n
+    return signed_distance(packed, 0, *map(float, x), t, n), n
 
 
 @pytest.mark.parametrize("collider,point,phi,normal", [
@@ -38,13 +38,13 @@ def sdf(row, x, t=0.0):
      [0, 0, 1]),
 ])
 def test_signed_distance_and_normal(collider, point, phi, normal):
-    got, n = sdf(table(collider)[0], point)
+    got, n = sdf(table(collider), point)
     assert got == pytest.approx(phi)
     np.testing.assert_allclose(n, normal, atol=1e-12)
 
 
 def test_moving_collider_level_set_follows_its_velocity():
-    row = table({"type": "sphere", "center": [0, 0, 0], "radius": 1, "velocity": [2, 0, 0]})[0]
+    row = table({"type": "sphere", "center": [0, 0, 0], "radius": 1, "velocity": [2, 0, 0]})
     assert sdf(row, [5, 0, 0], t=1.5)[0] == pytest.approx(1.0)
 
 

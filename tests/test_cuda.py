@@ -93,6 +93,12 @@ def test_collider_and_pins(compared):
     assert_same(row)
 
 
+def test_mesh_collider_alike(compared):
+    row = compared["mesh_collider"]
+    assert row["external_impulse"] > 1e-2  # the moving mesh stopped the block
+    assert_same(row)
+
+
 def test_viscoelastic_splat_rebuilds_alike(compared):
     row = compared["viscous_splat"]
     assert "families:viscoelastic" in row["phases"] and row["rebuilt"]
@@ -120,9 +126,10 @@ def test_kernels_compile_for_an_h100():
     assert r.returncode == 0, r.stderr[-3000:]
     compiled = {line.split(":")[0] for line in r.stdout.splitlines()}
     assert compiled == {"averaged_deformation_at", "elastic_force_at", "dilatation_at", "return_map_at",
-                        "incremental_dilatation_at", "viscoelastic_force_at", "copy_row_at", "zero_box", "p2g_kernel",
-                        "grid_update_kernel", "reset_stats", "g2p_kernel", "crack_contact_kernel",
-                        "crack_update_kernel", "criterion_at", "zero_cells", "count_cells", "cell_fraction"}
+                        "incremental_dilatation_at", "viscoelastic_force_at", "volume_pressure_at", "copy_row_at",
+                        "zero_box", "p2g_kernel", "grid_update_kernel", "reset_stats", "g2p_kernel",
+                        "crack_contact_kernel", "crack_update_kernel", "criterion_at", "zero_cells", "count_cells",
+                        "cell_fraction"}
 
 
 TINY = textwrap.dedent("""\

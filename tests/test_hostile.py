@@ -7,7 +7,6 @@ import resource
 import subprocess
 import sys
 import textwrap
-import time
 import tracemalloc
 from pathlib import Path
 
@@ -15,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
-from pdmpm_cli import budget
+from pdmpm_cli import budget, runner
 from pdmpm_cli.errors import InputError, OutputError
 from pdmpm_cli.io.hdf5 import Hdf5RunWriter, read_run
 from pdmpm_cli.render.options import parse_camera
@@ -59,30 +58,27 @@ def laughs(levels: int) -> str:
 
 def test_billion_laughs_is_refused_at_the_alias_before_memory_grows(tmp_path):
     tracemalloc.start()
-    start = time.perf_counter()
     message = refusal(tmp_path / "laughs.yaml", laughs(9))
-    seconds = time.perf_counter() - start
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
     assert message == (f"{tmp_path / 'laughs.yaml'}:18:23 variants.boom.a5.0.3.3.6.6.3: aliases expand to more than "
                        f"100,000 YAML nodes; write the values out or use fewer aliases")
-    assert seconds < 5 and peak < 200 * 2**20  # 9^9 = 3.9e8 leaves would need tens of GB
+    assert peak < 200 * 2**20  # 9^9 = 3.9e8 leaves would need tens of GB (wall times: bench/hostile_inputs.py)
 
 
-def test_validate_refuses_hostile_files_within_5_s_and_1_gb(tmp_path):
+def test_validate_refuses_hostile_files_within_1_gb(tmp_path):
     """The command end to end, in a child whose own peak memory (ru_maxrss) is read."""
     (tmp_path / "laughs.yaml").write_text(laughs(9))
     probe = textwrap.dedent("""\
-        import resource, subprocess, sys, time
-        t = time.perf_counter()
+        import resource, subprocess, sys
         r = subprocess.run([sys.executable, "-m", "pdmpm_cli", "validate", sys.argv[1]], capture_output=True, text=True)
-        print(r.returncode, time.perf_counter() - t, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024)
+        print(r.returncode, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024)
         print(r.stderr)""")
     r = subprocess.run([sys.executable, "-c", probe, tmp_path / "laughs.yaml"], capture_output=True, text=True,
                        cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=120)
-    code, seconds, peak = r.stdout.split("\n")[0].split()
+    code, peak = r.stdout.split("\n")[0].split()
     assert int(code) == 2 and "aliases expand to more than 100,000 YAML nodes" in r.stdout
-    assert float(seconds) < 5 and int(peak) < 2**30
+    assert int(peak) < 2**30
 
 
 def test_deep_nesting_is_refused_without_recursion(tmp_path):
@@ -98,16 +94,12 @@ def test_deep_nesting_is_refused_without_recursion(tmp_path):
 def test_errors_are_capped_and_counted(tmp_path):
     path = tmp_path / "keys.yaml"
     path.write_text(SMALL + "".join(f"k{i}: {i}\n" for i in range(40_000)))
-    start = time.perf_counter()
     lines = refusal(path).splitlines()
-    assert time.perf_counter() - start < 5
     assert len(lines) == 21 and lines[0].startswith(f"{path}:16:1 k0: unknown key (allowed keys: name, description,")
     assert lines[-1] == "... and 39980 more problems (fix the ones above and validate again)"
     path.write_text(SMALL + "".join(f"k{i}: {i}\n" for i in range(700_000)))
-    start = time.perf_counter()
     assert refusal(path) == (f"{path}: larger than 1024 KiB; a scene is a short hand-written file (meshes go in their "
                              f"own files, named by geometry.shape.path)")
-    assert time.perf_counter() - start < 1
 
 
 # ---------------------------------------------------------------- 2: a failed write (in-process, injected)
@@ -147,10 +139,9 @@ def test_estimate_counts_match_the_sampled_scene():
 
 def test_a_scene_too_big_for_memory_is_refused_before_sampling(monkeypatch):
     monkeypatch.setattr(budget, "available_memory", lambda: 16 * 2**30)
-    start = time.perf_counter()
+    monkeypatch.setattr(runner, "discretize", lambda *a: pytest.fail("sampled"))  # 3.7e7 particles: minutes, 90 GB
     with pytest.raises(InputError) as info:
         prepare(ROOT / "scenes" / "elastic_drop.yaml", ["bodies.0.geometry.spacing=0.0009"])
-    assert time.perf_counter() - start < 5  # sampling 3.7e7 particles would take minutes and 90 GB
     grid = budget.estimate(load_scene(ROOT / "scenes" / "elastic_drop.yaml", Scene)[0], ROOT).grid_bytes
     message = str(info.value).replace(f"grid {budget.gib(grid)}", "grid G")  # G depends on the thread count
     assert message == (

@@ -142,7 +142,7 @@ def test_voronoi_renders_cell_polyhedra(runs):
 def test_fluid_renders_a_surface(runs):
     """A viscoelastic body becomes one closed surface enclosing about its particles' volume."""
     from pdmpm_cli.render.run import render_run
-    from pdmpm_cli.render.scene import fluid_surface
+    from pdmpm_cli.io.surface import fluid_surface
     from pdmpm_cli.render.source import open_run
 
     source = open_run(runs["honey"])

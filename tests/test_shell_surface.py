@@ -2,7 +2,6 @@
 spacing, so that as the cloth folds under its weight the surface stays within half a spacing of its particles."""
 
 import numpy as np
-import pytest
 from scipy.spatial import cKDTree
 
 from pdmpm_cli.engine.embedding import mesh_positions

@@ -297,11 +297,12 @@ def test_linear_momentum_and_pair_symmetry():
     assert np.abs(body.force_visc).max() > 0.1 * np.abs(body.force_el).max()
 
 
-def test_effective_constants_are_the_lps_ones():
-    c = effective_constants(2e6, 1e6, 1000.0)
-    k = 2e6 + 2e6 / 3
-    assert c["bulk_modulus"] == pytest.approx(k) and c["shear_modulus"] == 1e6
-    assert c["p_wave_modulus"] == pytest.approx(k + 4e6 / 3)
+def test_effective_constants_are_the_isotropic_ones():
+    """The volume pressure's K and the bonds' mu give the textbook E, nu and P-wave speed; the bond bound keeps the
+    paper's lam + 2 mu."""
+    c = effective_constants(2e6, 1e6, 1000.0, 5e6)
+    assert c["bulk_modulus"] == 5e6 and c["shear_modulus"] == 1e6
+    assert c["p_wave_modulus"] == pytest.approx(4e6)
     assert c["youngs_modulus"] == pytest.approx(2 * 1e6 * (1 + c["poisson_ratio"]))
-    assert c["poisson_ratio"] == pytest.approx(2e6 / (2 * (2e6 + 1e6)))
-    assert c["wave_speed"] == pytest.approx(math.sqrt(4e6 / 1000.0))
+    assert c["poisson_ratio"] == pytest.approx((3 * 5e6 - 2e6) / (2 * (3 * 5e6 + 1e6)))
+    assert c["wave_speed"] == pytest.approx(math.sqrt((5e6 + 4e6 / 3) / 1000.0))

@@ -1,24 +1,98 @@
-"""Kinematic level-set colliders (plane, box, sphere, cylinder) and the Stomakhin et al. 2013 response.
+"""Kinematic level-set colliders (plane, box, sphere, cylinder, closed mesh) and the Stomakhin et al. 2013 response.
 
-Each collider is one row of a float64 table (packed by pdmpm_cli.assemble) so a kernel loops over them without objects:
+Each collider is a header row of a float64 table (packed by pdmpm_cli.assemble), so a kernel loops over them without
+objects and every kernel takes the one table:
   0 kind | 1-3 point/centre | 4-6 normal, box half-size or cylinder axis | 7 radius | 8 half height |
-  9 sign (+1, or -1 inside-out) | 10-12 velocity | 13 boundary (0 sticky, 1 slip, 2 separate) | 14 friction
-The collider moves with constant velocity: its centre at time t is centre + velocity t.
+  9 sign (+1, or -1 inside-out) | 10-12 velocity | 13 boundary (0 sticky, 1 slip, 2 separate) | 14 friction |
+  15 rows the collider spans (1, or 1 + its data rows) | 16-18 mesh: distance samples per axis |
+  19-21 mesh: first sample's position at time 0 [m] | 22 mesh: sample spacing [m]
+A mesh collider's signed distances follow its header row by row, x slowest, ROW values to a row. The collider moves
+with constant velocity: its centre (or its samples) at time t is the position at 0 + velocity t.
 """
 
 import math
 
+import numpy as np
 from numba import njit
 
-PLANE, BOX, SPHERE, CYLINDER = 0, 1, 2, 3
+PLANE, BOX, SPHERE, CYLINDER, MESH = 0, 1, 2, 3, 4
 STICKY, SLIP, SEPARATE = 0, 1, 2
 BOUNDARY_CODES = {"sticky": STICKY, "slip": SLIP, "separate": SEPARATE}
-ROW = 15
+ROW = 23
+
+
+def header_rows(table):
+    """Indices of the colliders' header rows (the rows a kernel reads first) in a packed table."""
+    out, c = [], 0
+    while c < len(table):
+        out.append(c)
+        c += int(table[c, 15])
+    return out
+
+
+def mesh_samples(table, c):
+    """Mesh collider c's signed distance samples as an (nx, ny, nz) array [m]."""
+    shape = tuple(int(v) for v in table[c, 16:19])
+    return table[c + 1:c + int(table[c, 15])].ravel()[:int(np.prod(shape))].reshape(shape)
 
 
 @njit(cache=True)
-def signed_distance(row, x0, x1, x2, t, n):
-    """Signed distance of point x to collider `row` at time t (negative inside); writes the unit normal to n."""
+def sample_at(table, first, ny, nz, i, j, k):
+    """Signed distance sample (i, j, k) of a mesh collider whose samples start at table row `first`."""
+    flat = (i * ny + j) * nz + k
+    return table[first + flat // ROW, flat % ROW]
+
+
+@njit(cache=True)
+def mesh_distance(table, c, p0, p1, p2, n):
+    """Signed distance [m] at p (relative to the first sample) from the trilinear interpolant of mesh collider c's
+    samples, and its gradient, normalised, in n. Outside the sampled box: the distance at the nearest point of the
+    box plus the distance to the box (the box reaches a few samples past the mesh, so that stays positive)."""
+    row = table[c]
+    nx, ny, nz, h = int(row[16]), int(row[17]), int(row[18]), row[22]
+    q0, q1, q2 = p0 / h, p1 / h, p2 / h
+    c0 = min(max(q0, 0.0), nx - 1.0)
+    c1 = min(max(q1, 0.0), ny - 1.0)
+    c2 = min(max(q2, 0.0), nz - 1.0)
+    outside = h * math.sqrt((q0 - c0) ** 2 + (q1 - c1) ** 2 + (q2 - c2) ** 2)
+    i = min(int(math.floor(c0)), nx - 2)
+    j = min(int(math.floor(c1)), ny - 2)
+    k = min(int(math.floor(c2)), nz - 2)
+    f0, f1, f2 = c0 - i, c1 - j, c2 - k
+    first = c + 1
+    phi = 0.0
+    g0, g1, g2 = 0.0, 0.0, 0.0
+    for a in range(2):
+        w0 = f0 if a else 1.0 - f0
+        d0 = 1.0 if a else -1.0
+        for b in range(2):
+            w1 = f1 if b else 1.0 - f1
+            d1 = 1.0 if b else -1.0
+            for e in range(2):
+                w2 = f2 if e else 1.0 - f2
+                d2 = 1.0 if e else -1.0
+                v = sample_at(table, first, ny, nz, i + a, j + b, k + e)
+                phi += w0 * w1 * w2 * v
+                g0 += d0 * w1 * w2 * v
+                g1 += w0 * d1 * w2 * v
+                g2 += w0 * w1 * d2 * v
+    if outside > 0.0:  # along a clamped axis the gradient [1] is the distance to the box's
+        g0 = (q0 - c0) * h / outside if q0 != c0 else g0 / h
+        g1 = (q1 - c1) * h / outside if q1 != c1 else g1 / h
+        g2 = (q2 - c2) * h / outside if q2 != c2 else g2 / h
+    g = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
+    if g > 0.0:
+        n[0], n[1], n[2] = g0 / g, g1 / g, g2 / g
+    else:
+        n[0], n[1], n[2] = 0.0, 1.0, 0.0
+    return phi + outside
+
+
+@njit(cache=True)
+def signed_distance(table, c, x0, x1, x2, t, n):
+    """Signed distance of point x to collider c (the header row `table[c]`) at time t (negative inside); writes
+    the unit normal to n."""
+    row = table[c]
     p0 = x0 - (row[1] + row[10] * t)
     p1 = x1 - (row[2] + row[11] * t)
     p2 = x2 - (row[3] + row[12] * t)
@@ -33,6 +107,9 @@ def signed_distance(row, x0, x1, x2, t, n):
         else:
             n[0], n[1], n[2] = 0.0, 1.0, 0.0
         phi = r - row[7]
+    elif kind == MESH:
+        phi = mesh_distance(table, c, x0 - (row[19] + row[10] * t), x1 - (row[20] + row[11] * t),
+                            x2 - (row[21] + row[12] * t), n)
     elif kind == BOX:
         q0 = abs(p0) - row[4]
         q1 = abs(p1) - row[5]
@@ -109,18 +186,22 @@ def respond(v, vc0, vc1, vc2, n, boundary, friction):
 @njit(cache=True)
 def collide_all(table, x0, x1, x2, t, v, n):
     """Apply every collider whose level set is <= 0 at x to the velocity v (in place)."""
-    for c in range(table.shape[0]):
+    c = 0
+    while c < table.shape[0]:
         row = table[c]
-        if signed_distance(row, x0, x1, x2, t, n) <= 0.0:
+        if signed_distance(table, c, x0, x1, x2, t, n) <= 0.0:
             respond(v, row[10], row[11], row[12], n, int(row[13]), row[14])
+        c += int(row[15])
 
 
 @njit(cache=True)
 def push_out(table, x, t, n):
     """Move point x (in place) out of any collider it penetrates, to the surface along the normal."""
-    for c in range(table.shape[0]):
-        phi = signed_distance(table[c], x[0], x[1], x[2], t, n)
+    c = 0
+    while c < table.shape[0]:
+        phi = signed_distance(table, c, x[0], x[1], x[2], t, n)
         if phi < 0.0:
             x[0] -= phi * n[0]
             x[1] -= phi * n[1]
             x[2] -= phi * n[2]
+        c += int(table[c, 15])

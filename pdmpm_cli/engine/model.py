@@ -48,7 +48,7 @@ class Model:
     pin_velocity: np.ndarray  # (n, 3) [m/s], or (0, 3)
     pin_stop: np.ndarray  # (n,) time each pin stops [s] (inf: never), or (0,)
     bodies: tuple[BodyParams, ...]
-    colliders: np.ndarray  # (n_colliders, ROW) table, see engine.colliders
+    colliders: np.ndarray  # (rows, ROW) packed table: header rows and mesh samples, see engine.colliders
     gravity: np.ndarray  # (3,) [m/s^2]
     wind_velocity: np.ndarray  # (3,) [m/s]
     wind_drag: float  # [1/s], 0 without wind

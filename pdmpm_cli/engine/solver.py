@@ -12,6 +12,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from pdmpm_cli.engine.bonds import AVERAGED_DEFORMATION, averaged_deformation, bond_reference_terms
+from pdmpm_cli.engine.colliders import header_rows
 from pdmpm_cli.engine.fracture import CRITERION, damage, fracture_update
 from pdmpm_cli.engine.materials import MATERIALS, declared_fields
 from pdmpm_cli.engine.model import Model
@@ -229,7 +230,8 @@ class Solver:
                 kind.start(self, state, i)
         m = self.model
         extent = float(np.max(np.asarray(m.grid_shape) - 1) * m.dx)
-        v_coll = float(np.abs(m.colliders[:, 10:13]).max()) if len(m.colliders) else 0.0
+        heads = header_rows(m.colliders)
+        v_coll = float(np.abs(m.colliders[heads, 10:13]).max()) if heads else 0.0
         v_coll = max(v_coll, float(np.linalg.norm(m.wind_velocity)))  # the wind can bring material to its speed
         v_coll = max(v_coll, pin_speed(m))  # so can a moving pin that drags its body along
         mass = float(m.particle_mass.sum())

@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 from scipy.sparse.linalg import ArpackNoConvergence, LinearOperator, eigs
 
-from pdmpm_cli.engine.colliders import BOX, CYLINDER, PLANE, SPHERE
+from pdmpm_cli.engine.colliders import BOX, CYLINDER, MESH, PLANE, SPHERE, header_rows, mesh_samples
 from pdmpm_cli.engine.state import State
 from pdmpm_cli.engine.transfer import WALL, stencil
 
@@ -182,16 +182,31 @@ def particle_omega2(solver, state, bodies, stiffness: _Stiffness | None = None) 
     return _largest(apply_scaled, 3 * len(sel))
 
 
+def ridge_depth(samples: np.ndarray, spacing: float) -> float:
+    """Smallest depth [m] of the inside samples that are at least as deep as their six neighbours (the medial
+    ridge; samples on the surface, where edges flatten the depth, do not count): half the thinnest wall of a mesh
+    solid, to within a sample."""
+    depth = np.pad(-samples, 1, constant_values=-np.inf)
+    core = depth[1:-1, 1:-1, 1:-1]
+    ridge = core > 0.5 * spacing
+    for axis in range(3):
+        for shift in (-1, 1):
+            ridge &= core >= np.roll(depth, shift, axis=axis)[1:-1, 1:-1, 1:-1]
+    return float(core[ridge].min()) if ridge.any() else 0.5 * spacing
+
+
 def tunnel_depth(model) -> float:
     """Thinnest solid of a collider within the valid domain [m]: a plane's depth behind it (to the region particles
-    may occupy, >= 1 cell inside the domain), a sphere's or cylinder's diameter, a box's smallest side. Inside-out
+    may occupy, >= 1 cell inside the domain), a sphere's or cylinder's diameter, a box's smallest side, a mesh's
+thinnest wall (twice the depth of its shallowest ridge sample). Inside-out
     colliders are containers and have no solid to cross (inf when nothing applies)."""
     nodes = np.asarray(model.grid_shape)
     lo = model.origin + model.dx
     hi = model.origin + (nodes - WALL) * model.dx
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     depth = math.inf
-    for row in model.colliders:
+    for c in header_rows(model.colliders):
+        row = model.colliders[c]
         if row[9] < 0:
             continue
         kind = int(row[0])
@@ -204,6 +219,8 @@ def tunnel_depth(model) -> float:
             d = 2 * float(row[4:7].min())
         elif kind == CYLINDER:
             d = 2 * min(row[7], row[8])
+        elif kind == MESH:
+            d = 2 * ridge_depth(mesh_samples(model.colliders, c), row[22])
         else:
             continue
         if d > 0:

@@ -80,7 +80,7 @@ def position_bounds(particle_x):
     return lo, hi
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt, origin,
            inv_dx, g, wx, wy, wz):
     """P2G of particle p: mass, APIC momentum and dt * bond force (eq. 7: f_I = sum_p N_I(x_p) f_p) -> g.
@@ -153,7 +153,7 @@ def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, parti
     return outside
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def grid_node_update(i, j, k, grid, dt, gravity, wind, drag, origin, dx, t_new, colliders, wall_boundary,
                      wall_friction, v, nrm):
     """Node (i, j, k): momentum -> velocity, v_I += dt g (step 3) and the wind's drag towards `wind` at rate
@@ -200,7 +200,7 @@ def pin_share(stop, t_new, dt):
     return share if share > 0.0 else 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, particle_crack,
            particle_x, particle_v, particle_C, wx, wy, wz, v, nrm):
     """G2P of particle p: velocity and APIC affine matrix (step 5), pins, particle collisions (step 6), advection.

@@ -18,7 +18,7 @@ from pdmpm_cli.errors import InputError
 from pdmpm_cli.geometry.mesh import SurfaceMesh, _weld, is_closed, validate_surface
 from pdmpm_cli.geometry.shapes import _positive, _rotation, _size3, _vec3
 
-__all__ = ["PRIMITIVES", "primitive_surface"]
+__all__ = ["PRIMITIVES", "bowl_surface", "primitive_surface"]
 
 PRIMITIVES = ("sheet", "box", "sphere", "cylinder", "capsule")
 #: refuse primitive surfaces with more triangles than this
@@ -188,4 +188,23 @@ def primitive_surface(kind: str, *, center, R, edge: float, size=None, radius=No
         V, T = _revolve(_profile(kind, e, r, hgt, lng), e)
     V = c + V @ M.T
     V, T, repairs = validate_surface(V, T, what, allow_open=(kind == "sheet"))
+    return SurfaceMesh(V, T, "", repairs, closed=is_closed(T))
+
+
+def bowl_surface(outer: float, inner: float, edge: float) -> SurfaceMesh:
+    """A hemispherical bowl as a closed solid: outer and inner hemispheres (radii [m]) joined by a flat rim at
+    y = 0, opening towards +y, about the origin. For mesh-collider checks (the stability sweep, the tests):
+    a container whose hollow is outside the solid. Volume 2 pi (outer^3 - inner^3) / 3."""
+    if not 0.0 < inner < outer:
+        raise InputError(f"bowl: need 0 < inner < outer radius, got inner {inner!r}, outer {outer!r}")
+    profile = [(outer * math.cos(a), outer * math.sin(a)) for a in
+               np.linspace(-0.5 * math.pi, 0.0, _nseg(0.5 * math.pi * outer, edge) + 1)]
+    n_rim = _nseg(outer - inner, edge)
+    profile += [(outer - (outer - inner) * k / n_rim, 0.0) for k in range(1, n_rim)]
+    profile += [(inner * math.cos(a), inner * math.sin(a)) for a in
+                np.linspace(0.0, -0.5 * math.pi, _nseg(0.5 * math.pi * inner, edge) + 1)]
+    P = np.array(profile)
+    P[0, 0] = P[-1, 0] = 0.0
+    V, T = _revolve(P, edge)
+    V, T, repairs = validate_surface(V[:, [0, 2, 1]] * np.array([1.0, 1.0, -1.0]), T, "bowl")  # z up -> y up
     return SurfaceMesh(V, T, "", repairs, closed=is_closed(T))

@@ -8,7 +8,9 @@ fps, and one time sample per frame at time code = frame time x fps (frame N at N
   a constant width of the body's particle spacing, and every other per-frame field of ``output.fields`` as a
   primvar of the same name (``primvars:particle_speed``; 3-vectors as float3, 3x3 tensors as 9 floats per point);
 * ``surface`` (shell bodies) or ``cells`` (Voronoi bodies): a ``UsdGeomMesh`` of the triangles the PLY files hold,
-  with animated points.
+  with animated points;
+* ``fluid_surface`` (viscoelastic bodies): the surface reconstructed from the particles each frame
+  (``io.surface``), a ``UsdGeomMesh`` whose points and faces are both time-sampled (its topology changes).
 
 The file is written in USD's binary (crate) format and saved after every frame (an incremental save costs about a
 millisecond), so a killed run leaves every frame written so far; ``reopen`` (``pdmpm run --resume``) drops the time
@@ -72,7 +74,8 @@ def prim_names(names) -> list[str]:
 class UsdWriter:
     """Writes every frame as time samples of one USD stage (see the module doc)."""
 
-    def __init__(self, path: str | os.PathLike[str], *, fps: float, bodies: list[UsdBody], meshes) -> None:
+    def __init__(self, path: str | os.PathLike[str], *, fps: float, bodies: list[UsdBody], meshes,
+                 surfaces=None) -> None:
         require()
         from pxr import Usd, UsdGeom
 
@@ -98,15 +101,24 @@ class UsdWriter:
             prim.CreateFaceVertexCountsAttr(np.full(len(mesh.triangles), 3, dtype=np.int32).tolist())
             prim.CreateFaceVertexIndicesAttr(np.asarray(mesh.triangles, dtype=np.int32).ravel().tolist())
             prim.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-        self._layout(bodies, names, meshes)
+        prims = dict(zip((b.name for b in bodies), names))
+        for fluid in surfaces.bodies if surfaces else ():
+            UsdGeom.Mesh.Define(self._stage, _surface_path(prims[fluid.name])).CreateSubdivisionSchemeAttr(
+                UsdGeom.Tokens.none)
+        self._layout(bodies, names, meshes, surfaces)
         self._stage.Save()
 
     @staticmethod
     def _mesh_path(body_prim: str, mesh) -> str:
         return f"{ROOT}/{body_prim}/{'cells' if mesh.kind == 'cells' else 'surface'}"
 
-    def _layout(self, bodies, names, meshes) -> None:
+    def _layout(self, bodies, names, meshes, surfaces=None) -> None:
         from pxr import UsdGeom
+
+        prims = dict(zip((b.name for b in bodies), names))
+        self._surfaces = surfaces if surfaces and surfaces.bodies else None
+        self._surface_prims = [UsdGeom.Mesh.Get(self._stage, _surface_path(prims[f.name]))
+                               for f in (surfaces.bodies if self._surfaces else ())]
 
         self._bodies = [(UsdGeom.Points.Get(self._stage, f"{ROOT}/{n}/particles"), b) for b, n in zip(bodies, names)]
         starts = np.cumsum([0] + [len(m.vertices) for m in meshes])
@@ -116,8 +128,8 @@ class UsdWriter:
         self._closed = False
 
     @classmethod
-    def reopen(cls, path: str | os.PathLike[str], *, fps: float, bodies: list[UsdBody], meshes, frames: int
-               ) -> UsdWriter:
+    def reopen(cls, path: str | os.PathLike[str], *, fps: float, bodies: list[UsdBody], meshes, frames: int,
+               surfaces=None) -> UsdWriter:
         """Continue the stage at ``path`` after its first ``frames`` frames: later time samples are removed."""
         require()
         from pxr import Usd
@@ -134,7 +146,7 @@ class UsdWriter:
             raise InputError(f"{writer.path}: cannot be reopened to continue the run ({str(error).strip()[:200]}); "
                              f"start the run again with --overwrite") from None
         names = prim_names([b.name for b in bodies])
-        writer._layout(bodies, names, meshes)
+        writer._layout(bodies, names, meshes, surfaces)
         held = 0
         for prim in writer._stage.Traverse():
             for attr in prim.GetAttributes():
@@ -153,6 +165,8 @@ class UsdWriter:
 
     def write_frame(self, index: int, time: float, fields: dict[str, np.ndarray]) -> None:
         """Add frame ``index`` as time samples at time code ``time * fps`` and save the stage."""
+        from pxr import Vt
+
         check_order(self.path, self._closed, self._last_index, index)
         code = float(time) * self._fps
         x = np.asarray(fields[POSITION_FIELD])
@@ -172,6 +186,12 @@ class UsdWriter:
             for mesh, a, b in self._meshes:
                 mesh.GetPointsAttr().Set(_vec3f(vx[a:b]), code)
                 mesh.GetExtentAttr().Set(_extent(vx[a:b], 0.0), code)
+        if self._surfaces:
+            for prim, (V, T) in zip(self._surface_prims, self._surfaces.at(index, x)):
+                prim.GetPointsAttr().Set(_vec3f(V), code)
+                prim.GetFaceVertexCountsAttr().Set(Vt.IntArray.FromNumpy(np.full(len(T), 3, dtype=np.int32)), code)
+                prim.GetFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(T.astype(np.int32).ravel()), code)
+                prim.GetExtentAttr().Set(_extent(V, 0.0), code)
         self._stage.SetEndTimeCode(max(code, self._stage.GetEndTimeCode()))
         self._last_index = index
         self._stage.Save()
@@ -179,6 +199,11 @@ class UsdWriter:
     def close(self) -> None:
         """Every frame is saved as it is written; marks the writer closed."""
         self._closed = True
+
+
+def _surface_path(body_prim: str) -> str:
+    """A fluid body's reconstructed surface; its topology changes every frame (time-sampled faces)."""
+    return f"{ROOT}/{body_prim}/fluid_surface"
 
 
 def _vec3f(a: np.ndarray):

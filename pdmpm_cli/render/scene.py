@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 from pydantic import TypeAdapter, ValidationError
 
+from pdmpm_cli.io.surface import fluid_surface
 from pdmpm_cli.render.fields import FIELDS
 from pdmpm_cli.render.source import Frame, MeshPart, RunSource, nearest
 from pdmpm_cli.scene.schema import Camera, Collider
@@ -22,31 +23,6 @@ pv.OFF_SCREEN = True
 
 BODY_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
                "#17becf")  # matplotlib's tab10, in order: body 0 blue, body 1 orange, ...
-FLUID_GRID_CELLS = 2e7  # cap on the splatting grid of a fluid surface (memory, marching-cubes time)
-
-
-
-def fluid_surface(x: np.ndarray, volume: np.ndarray, spacing: float) -> pv.PolyData:
-    """A smooth surface around fluid particles: volumes splatted on a grid of about h/2, Gaussian-smoothed over
-    h, contoured at the level whose enclosed volume matches the particles' volume (a fixed level loses thin
-    streams), then lightly smoothed. Particles alone read as sand, not honey."""
-    from scipy.ndimage import gaussian_filter
-
-    pad = 4 * spacing
-    lo, hi = x.min(axis=0) - pad, x.max(axis=0) + pad
-    cell = max(spacing / 2, (np.prod(hi - lo) / FLUID_GRID_CELLS) ** (1 / 3))
-    shape = tuple(np.ceil((hi - lo) / cell).astype(int) + 1)
-    nodes = np.ravel_multi_index(np.rint((x - lo) / cell).astype(int).T, shape)
-    phi = np.bincount(nodes, weights=volume, minlength=int(np.prod(shape))).reshape(shape) / cell**3
-    phi = gaussian_filter(phi, sigma=spacing / cell)
-    inside = int(np.clip(round(volume.sum() / cell**3), 1, phi.size))
-    level = float(np.partition(phi.ravel(), -inside)[-inside])
-    grid = pv.ImageData(dimensions=shape, spacing=(cell,) * 3, origin=lo)
-    grid.point_data["phi"] = phi.ravel(order="F")
-    surface = grid.contour([level], scalars="phi")
-    if surface.n_points == 0:
-        return surface
-    return surface.smooth_taubin(n_iter=15, pass_band=0.1).compute_normals(split_vertices=False)
 
 
 def up_direction(scene: dict) -> np.ndarray:
@@ -79,7 +55,7 @@ def _colliders(scene: dict) -> list:
 
 
 def _collider_mesh(c) -> pv.PolyData:
-    """A box, sphere or cylinder collider at time 0."""
+    """A box, sphere or cylinder collider at time 0 (a mesh collider's surface is a file of the run)."""
     if c.type == "box":
         lo, hi = np.subtract(c.center, np.divide(c.size, 2)), np.add(c.center, np.divide(c.size, 2))
         return pv.Box(bounds=(lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]))
@@ -227,9 +203,15 @@ class RenderScene:
         scene, focus, size = self.source.scene, (lo + hi) / 2, 40 * max(float(np.max(hi - lo)), 1e-3)
         colliders = _colliders(scene)
         moving = []
-        for c in colliders:
+        for i, c in enumerate(colliders):
             if c.type == "plane":
                 actor = self.plotter.add_mesh(_ground(_plane_center(c, focus), c.normal, size), texture=_checker())
+            elif c.type == "mesh":
+                surface = self.source.folder / "colliders" / f"collider_{i}.ply"
+                if not surface.is_file():  # a run folder copied without it: the collider is not drawn
+                    continue
+                actor = self.plotter.add_mesh(pv.read(surface), color="#8c8c8c", opacity=0.15 if c.inside_out else
+                                              0.35)
             else:
                 actor = self.plotter.add_mesh(_collider_mesh(c), color="#8c8c8c", smooth_shading=True,
                                               opacity=0.15 if c.inside_out else 0.35)

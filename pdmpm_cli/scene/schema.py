@@ -351,8 +351,16 @@ class CylinderCollider(ColliderBase):
     inside_out: bool = Field(False, description="True: material is kept inside the cylinder (a tube or cup).")
 
 
+class MeshCollider(ColliderBase, MeshShape):
+    """A closed surface mesh file as a collider, placed as a mesh body's shape is (units, scale, rotation,
+    translate or fit). Its level set is the mesh's signed distance sampled at half the grid cell."""
+
+    inside_out: bool = Field(False, description="True: material is kept inside the mesh (a closed container, as a "
+                                                "bottle's inner surface); false: outside it (a solid bowl's walls).")
+
+
 Collider = Annotated[
-    Union[PlaneCollider, BoxCollider, SphereCollider, CylinderCollider], Field(discriminator="type")
+    Union[PlaneCollider, BoxCollider, SphereCollider, CylinderCollider, MeshCollider], Field(discriminator="type")
 ]
 
 
@@ -428,7 +436,9 @@ class Output(Strict):
     hdf5: bool = Field(True, description="Write one HDF5 file (run.h5) with every frame.")
     vtk: bool = Field(True, description="Write a VTU file per frame and a .pvd index for ParaView.")
     meshes: bool = Field(True, description="Shell and Voronoi bodies: write their moving surface or cell "
-                                           "polyhedra as one PLY file per frame (meshes/<body>_NNNNN.ply).")
+                                           "polyhedra as one PLY file per frame (meshes/<body>_NNNNN.ply); fluid "
+                                           "(viscoelastic) bodies their reconstructed surface "
+                                           "(meshes/<body>_surface_NNNNN.ply).")
     usd: bool = Field(False, description="Write one USD file (run.usd: metres, +y up, a time sample per frame) with "
                                          "each body's particles as points (width, velocities, the fields below as "
                                          "primvars) and its shell surface or Voronoi cells as an animated mesh, for "

@@ -32,5 +32,7 @@ class MaterialKind:
     start: Callable | None = None  # (solver, body): initial values of its arrays, on the host State
     outputs: dict[str, Callable] = field(default_factory=dict)  # frame field name -> fn(model, state) -> array
     uses_fbar: Callable[[Any], bool] = lambda params: False  # whether its forces read Fbar (eq. 4)
+    with_flow_speed: Callable[[Any, float], Any] | None = None  # (params, largest expected flow speed [m/s]) ->
+    # params with the defaults that depend on the scene (a liquid's bulk modulus); None: params need no scene
     runs_as: Callable[[Any], str] | None = None  # section -> the registry entry that runs it (a plastic body that
     # can never yield runs as elastic); None: itself

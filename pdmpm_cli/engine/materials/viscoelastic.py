@@ -10,16 +10,25 @@ equals eq. 19's modulus state to first order:
     dt_pq    = (3 K dtheta_p / m_p) w L0  +  (15 mu / m_p) w (de - dtheta_p L0 / 3)   (bulk + deviatoric part)
 L0 is the bond's formation length. Relaxation is the standard linear solid (Mitchell 2011; Peridigm
 twoPoint_SLS): the bulk part and (1 - l) of the deviatoric part accumulate, a fraction l of the deviatoric
-part relaxes with time tau (effective shear viscosity ~ l mu tau).
+part relaxes with time tau (effective shear viscosity ~ l mu tau). The step passes K = 0 (the volume pressure
+below replaces the bulk part); the kernels keep K for the checks of the LPS increment against eq. 19.
 
 Each directed bond stores the pair sums t_pq + t_qp of both branches (bond_force_el, bond_force_visc), so
 no reverse-bond index is needed; both copies of a bond hold bitwise-identical values and
 f_p = sum_q (t_pq + t_qp) dir(eta) V_p V_q conserves linear momentum pairwise. bond_len0 < 0 marks a
 broken bond. Families are rebuilt from current neighbours (rebuild_families) so streams merge and split.
+
+Departure from the paper: the bonds' dilatation lets a liquid lose volume, since its increments start from the
+current configuration and a family rebuild that keeps every family's mean extension leaves it unchanged; in a
+sheared layer it even squeezes the liquid. So the bonds keep only their deviatoric part, and the bulk response is
+a pressure p = K (1 - J) from each particle's volume ratio J, advanced by the grid velocity's divergence
+(J <- J (1 + dt tr C), C the APIC velocity gradient; Stomakhin et al. 2014, Hu et al. 2018), acting through the
+grid as the MLS-MPM stress term (Hu et al. 2018). It cannot drift, and K defaults to the weakly compressible rule
+(sound speed ten times the largest flow speed, Monaghan 1994).
 """
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -37,13 +46,15 @@ from pdmpm_cli.spec import Strict
 class Schema(Strict):
     """Linearised peridynamics (paper section 5, eqs. 12-20) with standard-linear-solid relaxation.
 
-    Each step the previous configuration is the reference: the bond force grows by the linear peridynamic
-    solid response to the step's increment. The bulk part and (1 - relaxing_fraction) of the deviatoric part
-    are kept; relaxing_fraction of it decays with relaxation_time. Shear viscosity ~ relaxing_fraction mu tau."""
+    Each step the previous configuration is the reference: the bond force grows by the deviatoric part of the
+    linear peridynamic solid response to the step's increment; (1 - relaxing_fraction) of it is kept,
+    relaxing_fraction of it decays with relaxation_time. Shear viscosity relaxing_fraction mu tau. The bulk
+    response is a pressure from each particle's volume ratio, which keeps a liquid's volume."""
 
     model: Literal["viscoelastic"]
     density: float = Doc(gt=0, description="Mass density rho [kg/m^3].")
-    lam: float = Doc(ge=0, description="Lame's first parameter lambda; bulk modulus K = lam + 2 mu / 3 [Pa].")
+    lam: float = Doc(ge=0, description="Lame's first parameter lambda: the bulk modulus is at least lam + 2 mu / 3 "
+                     "[Pa].")
     mu: float = Doc(gt=0, description="Instantaneous shear modulus mu [Pa].")
     relaxation_time: float = Doc(
         gt=0, description="Relaxation time tau of the relaxing deviatoric part (honey short, cream longer) [s].")
@@ -57,6 +68,11 @@ class Schema(Strict):
     rebuild_distance: float = Doc(
         0.5, gt=0, le=2, description="Families are rebuilt when some particle has moved this multiple of the "
         "particle spacing, relative to the body's mean motion, since the last rebuild [-].")
+    bulk_modulus: float | None = Doc(
+        None, gt=0, description="Bulk modulus K of the pressure p = K (1 - J) from each particle's volume ratio J, "
+        "the material's whole bulk response. None: the weakly compressible rule K = density (10 v)^2, v the "
+        "largest speed the body can reach (its initial speed and a fall over the domain's height, the colliders' "
+        "and the wind's speed), so volume changes stay near 1 %; at least lam + 2 mu / 3 [Pa].")
 
 
 @dataclass(frozen=True)
@@ -68,11 +84,25 @@ class Params:
     relaxing_fraction: float  # l [-]
     break_stretch: float  # [-] (inf: never)
     rebuild_distance: float  # [spacings]
+    bulk_modulus: float  # K of the volume-ratio pressure [Pa] (nan: from the flow speed, `with_flow_speed`)
 
 
 def params(section) -> Params:
     return Params(section.density, section.lam, section.mu, section.relaxation_time, section.relaxing_fraction,
-                  section.break_stretch or math.inf, section.rebuild_distance)
+                  section.break_stretch or math.inf, section.rebuild_distance,
+                  math.nan if section.bulk_modulus is None else section.bulk_modulus)
+
+
+SOUND_OVER_FLOW = 10.0  # weakly compressible rule: sound speed >= 10 x flow speed keeps |J - 1| ~ (v / c)^2 ~ 1 %
+
+
+def with_flow_speed(p: Params, speed: float) -> Params:
+    """The bulk modulus the scene left open, K = rho (10 v)^2 for the largest expected flow speed v [m/s] (Monaghan
+    1994); at least lam + 2 mu / 3, so a scene at rest still gets a pressure."""
+    if not math.isnan(p.bulk_modulus):
+        return p
+    k = max(p.density * (SOUND_OVER_FLOW * speed) ** 2, p.lam + 2.0 * p.mu / 3.0)
+    return replace(p, bulk_modulus=k)
 
 
 @njit(cache=True)
@@ -198,6 +228,33 @@ def viscoelastic_forces(start, end, bulk, mu, tau, fraction, break_stretch, delt
     return broken
 
 
+@njit(cache=True)
+def volume_pressure_at(p, bulk, dt_prev, dt, inv_dx, pin_mask, particle_volume, particle_mass, particle_J,
+                       particle_C):
+    """Particle p's volume ratio J <- J (1 + dt_prev tr C) (C from the last G2P is the velocity gradient the
+    particle moved with over dt_prev), then its pressure p = K (1 - J) folded into particle_C for this step's P2G:
+    the MLS-MPM stress term -dt V sigma D^-1 (x_i - x_p) with sigma = -p I and V = J V0 is an isotropic affine
+    momentum, so C += dt V p D^-1 / m (D^-1 = 3 / dx^2 for cubic B-splines; Hu et al. 2018). G2P overwrites C, so
+    the checkpointed C stays the velocity gradient. Pinned particles keep only their prescribed motion."""
+    j = particle_J[p] * (1.0 + dt_prev * (particle_C[p, 0, 0] + particle_C[p, 1, 1] + particle_C[p, 2, 2]))
+    particle_J[p] = j
+    if pin_mask.shape[0] > 0 and pin_mask[p] != 0:
+        return
+    s = dt * particle_volume[p] * j * bulk * (1.0 - j) * 3.0 * inv_dx * inv_dx / particle_mass[p]
+    for a in range(3):
+        particle_C[p, a, a] += s
+
+
+@njit(parallel=True, cache=True)
+def volume_pressures(start, end, bulk, dt_prev, dt, inv_dx, pin_mask, particle_volume, particle_mass, particle_J,
+                     particle_C):
+    """`volume_pressure_at` for particles start..end-1."""
+    for p in prange(start, end):
+        volume_pressure_at(p, bulk, dt_prev, dt, inv_dx, pin_mask, particle_volume, particle_mass, particle_J,
+                           particle_C)
+
+
+VOLUME_PRESSURE = Kernel(volume_pressure_at, volume_pressures)
 INCREMENTAL_DILATATION = Kernel(incremental_dilatation_at, incremental_dilatation)
 FORCES = Kernel(viscoelastic_force_at, viscoelastic_forces, reduce="sum")
 
@@ -267,17 +324,17 @@ def rebuild_families(particle_x, bond_start, bond_nbr, bond_arrays, ranges, leng
     return new_start, new_nbr, {name: np.concatenate(parts)[order] for name, parts in values.items()}
 
 
-def effective_constants(lam: float, mu: float, density: float) -> dict:
-    """Instantaneous (unrelaxed) isotropic constants of the LPS response: K = lam + 2 mu / 3 and mu."""
-    k = lam + 2.0 * mu / 3.0
-    m = lam + 2.0 * mu
+def effective_constants(lam: float, mu: float, density: float, bulk: float) -> dict:
+    """Instantaneous (unrelaxed) isotropic constants: the volume pressure's bulk modulus and the bonds' mu.
+    p_wave_modulus, lam + 2 mu as in the paper's calibration, sets the bond bound of the step; wave_speed, with the
+    pressure's K, the CFL bound."""
     return {
-        "p_wave_modulus": m,
-        "youngs_modulus": 9.0 * k * mu / (3.0 * k + mu),
-        "poisson_ratio": (3.0 * k - 2.0 * mu) / (2.0 * (3.0 * k + mu)),
-        "bulk_modulus": k,
+        "p_wave_modulus": lam + 2.0 * mu,
+        "youngs_modulus": 9.0 * bulk * mu / (3.0 * bulk + mu),
+        "poisson_ratio": (3.0 * bulk - 2.0 * mu) / (2.0 * (3.0 * bulk + mu)),
+        "bulk_modulus": bulk,
         "shear_modulus": mu,
-        "wave_speed": math.sqrt(m / density),
+        "wave_speed": math.sqrt((bulk + 4.0 * mu / 3.0) / density),
     }
 
 
@@ -323,18 +380,26 @@ def families(solver, body: int, dt: float):
         state.particle_x_rebuild[b.start:b.end] = state.particle_x[b.start:b.end]
 
 
+def volume_pressure(solver, body: int, dt: float):
+    """J advanced over the previous step and this step's pressure folded into the P2G affine momentum."""
+    b, a, m = solver.model.bodies[body], solver.a, solver.m
+    solver.backend.run(VOLUME_PRESSURE, b.start, b.end, b.params.bulk_modulus, solver.state.dt_prev, dt,
+                       1.0 / solver.model.dx, m.pin_mask, m.particle_volume, m.particle_mass, a.particle_J,
+                       a.particle_C)
+
+
 def bonds(solver, body: int, dt: float):
-    """Eq. 12 with the LPS increment since the previous force evaluation -> particle_force."""
+    """Eq. 12 with the LPS increment since the previous force evaluation -> particle_force: the deviatoric part
+    only, since the volume pressure (volume_pressure) replaces the bonds' bulk part."""
     b, a, m = solver.model.bodies[body], solver.a, solver.m
     p = b.params
     run = solver.backend.run
     elapsed = solver.state.dt_prev  # the increment since particle_x_prev happened over the previous step, not dt
     run(INCREMENTAL_DILATATION, b.start, b.end, b.horizon, a.particle_x, a.particle_x_prev, m.particle_volume,
         a.bond_start, a.bond_nbr, a.bond_len0, a.particle_m, a.particle_dtheta)
-    run(FORCES, b.start, b.end, p.lam + 2.0 * p.mu / 3.0, p.mu, p.relaxation_time, p.relaxing_fraction,
-        p.break_stretch, b.horizon, elapsed, a.particle_x, a.particle_x_prev, m.particle_volume, a.bond_start,
-        a.bond_nbr, a.particle_m, a.particle_dtheta, a.bond_len0, a.bond_force_el, a.bond_force_visc,
-        a.particle_force)
+    run(FORCES, b.start, b.end, 0.0, p.mu, p.relaxation_time, p.relaxing_fraction, p.break_stretch, b.horizon,
+        elapsed, a.particle_x, a.particle_x_prev, m.particle_volume, a.bond_start, a.bond_nbr, a.particle_m,
+        a.particle_dtheta, a.bond_len0, a.bond_force_el, a.bond_force_visc, a.particle_force)
     run(COPY_ROWS, b.start, b.end, a.particle_x, a.particle_x_prev)
 
 
@@ -344,13 +409,20 @@ def energy(solver, state, body: int) -> float:
 
 
 def constants(p: Params) -> dict:
-    return effective_constants(p.lam, p.mu, p.density)
+    bulk = p.lam + 2.0 * p.mu / 3.0 if math.isnan(p.bulk_modulus) else p.bulk_modulus
+    return effective_constants(p.lam, p.mu, p.density, bulk)
+
+
+def volume_ratio(model, state) -> np.ndarray:
+    return state.particle_J
 
 
 KIND = MaterialKind(
     name="viscoelastic", schema=Schema, params=params, forces=bonds, constants=constants, energy=energy,
-    after_forces=families, start=init_state,
+    before_forces=volume_pressure, after_forces=families, start=init_state, with_flow_speed=with_flow_speed,
+    outputs={"particle_J": volume_ratio},
     fields=(
+        Field("particle_J", PARTICLE, fill=1.0, doc="volume ratio J = V / V0 from the grid velocity divergence [-]"),
         Field("bond_len0", BOND, doc="formation length of each bond [m] (< 0: broken)"),
         Field("bond_force_el", BOND, doc="non-relaxing pair force [N/m^6]"),
         Field("bond_force_visc", BOND, doc="relaxing pair force [N/m^6]"),

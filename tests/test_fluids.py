@@ -1,0 +1,163 @@
+"""Viscoelastic liquids keep their volume (the volume-ratio pressure, docs/method.md): the MLS-MPM pressure term's
+virial, a column at rest (hydrostatics: height, volume and spacing kept), a dam break (volume kept) and start-up
+Couette flow (the analytic series with the stated viscosity). The longer versions are marked slow; bench/fluids.py
+prints the figures in docs/results.md."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from pdmpm_cli.checkpoint import restore, snapshot
+from pdmpm_cli.engine.materials.viscoelastic import volume_pressures
+from pdmpm_cli.engine.transfer import p2g_at
+from tests import fluid_cases as F
+from tests.conftest import merge
+
+
+def test_pressure_term_is_the_stress_virial():
+    """J advances by dt tr C, and the pressure folded into C makes P2G push the nodes apart with the virial of the
+    stress, sum_i (x_i - x_p) . dp_i = -dt V tr(sigma) = 3 dt V p, adding no net momentum (Hu et al. 2018)."""
+    dx, dt, dt_prev, bulk = 0.1, 1e-3, 2e-3, 1e5
+    x = np.array([[0.537, 0.412, 0.466]])
+    v = np.array([[0.3, -0.2, 0.1]])
+    grad = np.array([[[1.0, 0.2, 0.0], [0.1, -3.0, 0.4], [0.0, 0.3, -2.0]]])  # tr = -4 1/s
+    mass, volume = np.array([2.0]), np.array([1e-3])
+    j = np.array([1.0])
+
+    def scatter(c):
+        g = np.zeros((10, 10, 10, 4))
+        p2g_at(0, x, v, c, mass, np.zeros((1, 3)), np.zeros(0, np.uint8), np.zeros(0, np.uint8), dt,
+               np.zeros(3), 1 / dx, g, np.empty(4), np.empty(4), np.empty(4))
+        return g
+
+    before = scatter(grad.copy())
+    c = grad.copy()
+    volume_pressures(0, 1, bulk, dt_prev, dt, 1 / dx, np.zeros(0, np.uint8), volume, mass, j, c)
+    assert j[0] == pytest.approx(1.0 - 4.0 * dt_prev, rel=1e-14)
+    pressure = bulk * (1.0 - j[0])
+    extra = scatter(c) - before
+    nodes = np.stack(np.meshgrid(*[np.arange(10) * dx] * 3, indexing="ij"), axis=-1)
+    virial = np.einsum("ijka,ijka->", nodes - x[0], extra[..., 1:])
+    np.testing.assert_allclose(extra[..., 1:].sum(axis=(0, 1, 2)), 0.0, atol=1e-15)
+    assert virial == pytest.approx(3.0 * dt * volume[0] * j[0] * pressure, rel=1e-9)
+
+
+def column_history(sim_factory, scene, samples=10):
+    """Height, volume and nearest spacing relative to the start, at `samples` times over the run."""
+    sim = sim_factory(base=scene)
+    h = sim.model.bodies[0].spacing
+    x0 = sim.state.particle_x.copy()
+    start = (F.surface_height(x0, h, 0.1), F.occupied_volume(x0, h), F.nearest_spacing(x0))
+    rows = []
+    for t in np.linspace(0, scene["simulation"]["duration"], samples + 1)[1:]:
+        sim.advance(t)
+        x = sim.state.particle_x
+        rows.append((t, F.surface_height(x, h, 0.1) / start[0], F.occupied_volume(x, h) / start[1],
+                     F.nearest_spacing(x) / start[2]))
+    return np.array(rows)
+
+
+def check_column(rows, label):
+    worst = np.abs(rows[:, 1:] - 1.0).max(axis=0)
+    print(f"\n{label}: worst height {worst[0]:.2%}, volume {worst[1]:.2%}, nearest spacing {worst[2]:.2%}")
+    assert worst[0] < 0.01 and worst[1] < 0.01 and worst[2] < 0.10
+
+
+@pytest.mark.parametrize("density", [1000.0, 1400.0])
+def test_column_at_rest_keeps_height_volume_and_spacing(sim_factory, density):
+    """A liquid column at rest in a tank, over 100 relaxation times: height and particle volume within 1 %, nearest
+    spacing within 10 % of the start (hydrostatic compression rho g H / 2K is 0.15 % with the default K)."""
+    check_column(column_history(sim_factory, F.column(density, 0.1, tau=0.001)), f"{density:.0f} kg/m^3")
+
+
+def test_column_without_the_pressure_collapses(sim_factory):
+    """The check above can fail: with a negligible bulk modulus the bonds alone let the column sink."""
+    scene = F.column(1000.0, 0.1, tau=0.001)
+    scene = merge(scene, {"bodies": [merge(scene["bodies"][0], {"material": {"bulk_modulus": 1.0}})]})
+    rows = column_history(sim_factory, scene, samples=1)
+    print(f"\nwithout the pressure: height {rows[-1, 1]:.1%}, volume {rows[-1, 2]:.1%} of the start")
+    assert rows[-1, 1] < 0.95
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("density", [1000.0, 1400.0])
+def test_column_at_rest_long(sim_factory, density):
+    """As above over 100 relaxation times of 0.01 s (1 s) and a taller column."""
+    rows = column_history(sim_factory, F.column(density, 1.0, size=(0.08, 0.2, 0.08), tau=0.01))
+    check_column(rows, f"{density:.0f} kg/m^3, 1 s")
+
+
+def dam_volumes(sim_factory, duration, samples):
+    sim = sim_factory(base=F.dam_break(duration))
+    h = sim.model.bodies[0].spacing
+    v0 = F.occupied_volume(sim.state.particle_x, h)
+    out = []
+    for t in np.linspace(0, duration, samples + 1)[1:]:
+        sim.advance(t)
+        out.append(F.occupied_volume(sim.state.particle_x, h) / v0)
+    return np.array(out), sim
+
+
+def test_dam_break_keeps_volume(sim_factory):
+    """A released block of liquid spreads (its surface falls) and keeps its volume within 2 %."""
+    ratios, sim = dam_volumes(sim_factory, 0.12, 4)
+    h = sim.model.bodies[0].spacing
+    height = F.surface_height(sim.state.particle_x, h, 0.1)
+    print(f"\nvolume / start: {np.round(ratios, 4).tolist()}; surface height {height * 1e3:.1f} mm (from 120)")
+    assert height < 0.9 * 0.12  # it flowed
+    assert np.abs(ratios - 1.0).max() < 0.02
+
+
+@pytest.mark.slow
+def test_dam_break_keeps_volume_long(sim_factory):
+    ratios, _ = dam_volumes(sim_factory, 0.4, 8)
+    print(f"\nvolume / start: {np.round(ratios, 4).tolist()}")
+    assert np.abs(ratios - 1.0).max() < 0.02
+
+
+def couette_errors(sim_factory, duration, samples, **size):
+    """Mid-layer velocity against the series (held node rows depth + dx apart), relative to the final value."""
+    scene = F.couette(duration, **size)
+    sim = sim_factory(base=scene)
+    mat, dx, h = scene["bodies"][0]["material"], sim.model.dx, sim.model.bodies[0].spacing
+    depth, length = size.get("depth", 0.1), size.get("length", 0.2)
+    nu = mat["relaxing_fraction"] * mat["mu"] * mat["relaxation_time"] / mat["density"]
+    rows = []
+    for t in np.linspace(0, duration, samples + 1)[1:]:
+        sim.advance(t)
+        u = F.mid_layer_velocity(sim.state.particle_x, sim.state.particle_v, h, (0.1 + length / 2, 0.105 + depth / 2),
+                                 depth)
+        rows.append((t, u, F.couette_mid_velocity(t, depth + dx, nu, 0.1)))
+    rows = np.array(rows)
+    print("\n" + "; ".join(f"t {t:.3f} s: {u:.4f} m/s (series {a:.4f})" for t, u, a in rows))
+    return rows
+
+
+def test_startup_couette_follows_the_series(sim_factory):
+    """Start-up Couette flow: the mid-layer velocity follows the analytic series with nu = l mu tau / rho within
+    10 % after the first 5 % of the diffusion time (H + dx)^2 / nu (before, the Maxwell liquid's shear wave lags)."""
+    rows = couette_errors(sim_factory, 0.12, 3, depth=0.06, length=0.12, width=0.02)
+    np.testing.assert_allclose(rows[:, 1], rows[:, 2], rtol=0.1)
+
+
+@pytest.mark.slow
+def test_startup_couette_follows_the_series_long(sim_factory):
+    rows = couette_errors(sim_factory, 0.3, 5)
+    np.testing.assert_allclose(rows[:, 1], rows[:, 2], rtol=0.1)
+
+
+def test_resume_carries_the_volume_ratio(sim_factory):
+    """particle_J is a declared array, so a checkpoint carries it: a resumed dam break is bitwise the uninterrupted
+    one, and the same resume with J reset to 1 is not (the declaration is what carries it)."""
+    scene = F.dam_break(0.04)
+    ref = sim_factory(base=scene)
+    ref.advance(0.02)
+    arrays, scalars = snapshot(ref.state)
+    ref.advance(0.04)
+    for lose_j, equal in ((False, True), (True, False)):
+        saved = dict(arrays, particle_J=np.ones_like(arrays["particle_J"])) if lose_j else arrays
+        sim = sim_factory(base=scene)
+        restore(SimpleNamespace(arrays=saved, attrs=scalars, path="memory"), sim.state, sim.solver)
+        sim.advance(0.04)
+        assert np.array_equal(sim.state.particle_x, ref.state.particle_x) == equal
