@@ -112,5 +112,5 @@ def build_model(scene: Scene, disc: Discretization) -> Model:
         wind_velocity=np.asarray(scene.wind.velocity if scene.wind else (0.0, 0.0, 0.0), dtype=np.float64),
         wind_drag=scene.wind.drag if scene.wind else 0.0,
         origin=lo, dx=g.cell_size, grid_shape=tuple(int(c) + 1 for c in cells),
-        wall_boundary=BOUNDARY_CODES[g.boundary], wall_friction=g.friction,
+        wall_boundary=BOUNDARY_CODES[g.boundary], wall_friction=g.friction, bond_cracked=disc.bond_cracked,
     )

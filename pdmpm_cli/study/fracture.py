@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from pdmpm_cli.engine.fracture import pieces
+from pdmpm_cli.engine.fracture import damage, pieces
 from pdmpm_cli.engine.transfer import stencil
 from pdmpm_cli.study.sim import Sim
 
@@ -106,9 +106,10 @@ class Result:
     separation: float  # time the bar first came apart in two large pieces [s] (nan: never)
     dissipated: float  # W - strain - kinetic at the end [J]
     before: float  # the same just before the first bond broke [J]: the balance's own error while nothing breaks
+    stored: float  # strain energy then [J]: what an unstable crack releases as motion, which the transfers damp
     work_before: float  # W then [J]
     cut_energy: float  # energy the bonds held when they were cut, (M/2) s^2 per direction [J]
-    bond_area: float  # sum over broken bonds of their energy at the threshold, / G_c [m^2]
+    bond_area: float  # sum over the bonds broken in the run of their energy at the threshold, / G_c [m^2]
     area: float  # the ligament [m^2]
     seconds: float
 
@@ -139,6 +140,17 @@ def crossing_energy(model, body: int, modulus: float, plane: float, lo, hi) -> f
     return float(energy[inside].sum()) / float(np.prod(np.asarray(hi) - np.asarray(lo)))
 
 
+def crossing_notch(model, scene: dict, bar: Bar) -> np.ndarray:
+    """Bonds crossing the plane x = the bar's middle within the notch's depth from the top face."""
+    c = scene["bodies"][0]["geometry"]["shape"]["center"]
+    own = np.repeat(np.arange(len(model.bond_start) - 1), np.diff(model.bond_start))
+    x, q = model.rest_x, model.bond_nbr
+    cross = (x[own, 0] < c[0]) != (x[q, 0] < c[0])
+    t = (c[0] - x[own, 0]) / np.where(cross, x[q, 0] - x[own, 0], 1.0)
+    y = x[own, 1] + t * (x[q, 1] - x[own, 1])
+    return cross & (y > c[1] + bar.section / 2 - bar.notch_depth)
+
+
 def large_pieces(state, model, body: int = 0) -> int:
     """Pieces of the body over LARGE of its mass."""
     b = model.bodies[body]
@@ -148,13 +160,22 @@ def large_pieces(state, model, body: int = 0) -> int:
 
 
 def pull(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.4, after: float = 0.1,
-         sampling: str = "relaxed", damage_resistance: float = 1.0) -> Result:
-    """Pull the bar at `cell` until `after` seconds past its first separation (or `duration`); the energy balance."""
+         sampling: str = "relaxed", damage_resistance: float = 1.0, precrack: bool = False) -> Result:
+    """Pull the bar at `cell` until `after` seconds past its first separation (or `duration`); the energy balance.
+    `precrack`: no notch cut out; instead the bonds crossing the notch's mid-plane start broken (a crack of zero
+    width, whose faces are a spacing apart instead of two)."""
     t0 = time.perf_counter()
     scene = bar_scene(cell, energy, bar, duration, sampling=sampling)
     scene["bodies"][0]["fracture"]["damage_resistance"] = damage_resistance
+    if precrack:
+        scene["bodies"][0]["geometry"].pop("cutouts")
     sim = Sim(scene)
     model, state, solver = sim.model, sim.state, sim.solver
+    if precrack:
+        state.bond_active[crossing_notch(model, scene, bar)] = 0
+        damage(state.bond_start, state.bond_active, state.particle_damage, state.particle_crack)
+        solver.bind(state)
+    initial = state.bond_active == 0
     b = model.bodies[0]
     modulus = LAM + 2.0 * MU
     held = np.flatnonzero(model.pin_mask).astype(np.int64)
@@ -178,21 +199,22 @@ def pull(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.4, af
     def balance() -> float:
         return tally["work"] - solver.strain_energy(state) - solver.kinetic_energy(state)
 
-    before = work_before = separation = np.nan
+    before = work_before = stored = separation = np.nan
     end = duration
     while state.time < end - 1e-12:
-        last = (balance(), tally["work"]) if state.bonds_cut == 0 else None
+        last = (balance(), tally["work"], solver.strain_energy(state)) if state.bonds_cut == 0 else None
         solver.advance(state, min(state.time + sim.plan.frame_dt, end), on_substep)
         if last is not None and state.bonds_cut > 0:
-            before, work_before = last
+            before, work_before, stored = last
         if np.isnan(separation) and state.bonds_cut > 0 and large_pieces(state, model) >= 2:
             separation = state.time
             end = min(duration, state.time + after)
     crit = critical_bond_energy(model, 0, modulus, b.fracture.threshold)
+    broken = (state.bond_active == 0) & ~initial  # the notch's bonds start broken: not the run's
     return Result(cell=cell, spacing=b.spacing, horizon=b.horizon, particles=b.end - b.start,
                   threshold=b.fracture.threshold, expected=energy * bar.ligament(), large=large_pieces(state, model),
-                  separation=separation, dissipated=balance(), before=before, work_before=work_before,
-                  cut_energy=tally["cut"], bond_area=float(crit[state.bond_active == 0].sum()) / energy,
+                  separation=separation, dissipated=balance(), before=before, work_before=work_before, stored=stored,
+                  cut_energy=tally["cut"], bond_area=float(crit[broken].sum()) / energy,
                   area=bar.ligament(), seconds=time.perf_counter() - t0)
 
 
@@ -224,14 +246,19 @@ def plate_scene(cell: float, energy: float, size: float = 0.48, thickness: float
 
 
 def damage_band(model, state, body: int = 0, grip: float = 0.0) -> dict:
-    """Where a mode-I crack's damage lies, among the particles more than `grip` + a horizon from the top and bottom
-    faces (damage at the grips' edges is counted apart, as `at_grips`): the damaged particles' rest distance from
-    the notch's plane (y) as percentiles 50 / 90 / 100 [m], and how far in x the damage reached [m]."""
+    """Where a mode-I crack's damage (bonds broken in the run) lies, among the particles more than `grip` + a horizon
+    from the top and bottom faces (damage at the grips' edges is counted apart, as `at_grips`): the damaged
+    particles' rest distance from the notch's plane (y) as percentiles 50 / 90 / 100 [m], and how far in x the
+    damage reached [m]."""
     b = model.bodies[body]
     x0 = model.rest_x[b.start:b.end]
     lo, hi = x0[:, 1].min(), x0[:, 1].max()
     mid = 0.5 * (lo + hi)
-    damaged = state.particle_damage[b.start:b.end] > 0
+    run = state.bond_active == 0
+    if len(model.bond_cracked):
+        run &= ~model.bond_cracked  # a notch's bonds start broken: its faces are not damage of the run
+    own = np.repeat(np.arange(len(state.bond_start) - 1), np.diff(state.bond_start))
+    damaged = np.bincount(own[run], minlength=len(state.bond_start) - 1)[b.start:b.end] > 0
     inner = np.abs(x0[:, 1] - mid) < 0.5 * (hi - lo) - grip - b.horizon
     hit = damaged & inner
     out = {"damaged": int(hit.sum()), "at_grips": int((damaged & ~inner).sum())}
@@ -240,3 +267,26 @@ def damage_band(model, state, body: int = 0, grip: float = 0.0) -> dict:
     p50, p90, top = np.percentile(np.abs(x0[hit, 1] - mid), [50, 90, 100])
     return out | {"p50": float(p50), "p90": float(p90), "max": float(top),
                   "reach": float(x0[hit, 0].max() - x0[:, 0].min())}
+
+
+def slit_drag(fracture: bool, cell: float = 0.02, speed: float = 0.1, duration: float = 0.05) -> float:
+    """A bar cut through by a slit half a cell wide, its right end pulled away at `speed`: the left half's mean
+    displacement over speed x duration. No force crosses the gap, so the answer is 0; the grid couples material
+    closer than its B-splines' reach (two cells either side). With fracture the slit's faces are crack particles
+    (off the grid); without it they are ordinary particles."""
+    c = [0.2, 0.1, 0.1]
+    body = {"name": "bar",
+            "geometry": {"mode": "cloud", "sampling": "lattice",
+                         "shape": {"type": "box", "center": c, "size": [0.24, 0.06, 0.06]},
+                         "cutouts": [{"type": "box", "center": c, "size": [cell / 2, 0.2, 0.2]}]},
+            "material": {"model": "elastic", "density": RHO, "lam": LAM, "mu": MU},
+            "pins": [{"region": {"type": "box", "center": [c[0] + 0.1, c[1], c[2]], "size": [0.04, 0.2, 0.2]},
+                      "velocity": [speed, 0.0, 0.0]}]}
+    if fracture:
+        body["fracture"] = {"energy": 2.0}
+    sim = Sim({"simulation": {"duration": duration, "fps": 100},
+               "grid": {"cell_size": cell, "domain": {"min": [0, 0, 0], "max": [0.5, 0.2, 0.2]}},
+               "gravity": [0, 0, 0], "bodies": [body]})
+    sim.advance(duration)
+    left = sim.model.rest_x[:, 0] < c[0]
+    return float((sim.state.particle_x - sim.model.rest_x)[left, 0].mean() / (speed * duration))
