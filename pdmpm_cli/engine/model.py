@@ -59,6 +59,7 @@ class Model:
     wall_friction: float
     # (n_bonds,) bonds broken at t = 0 (through a fracturing body's cutouts: a notch is a crack), or (0,)
     bond_cracked: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    particle_precut: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (n,) of them, or (0,)
 
     @property
     def n_particles(self) -> int:

@@ -109,6 +109,8 @@ class Result:
     stored: float  # strain energy then [J]: what an unstable crack releases as motion, which the transfers damp
     work_before: float  # W then [J]
     cut_energy: float  # energy the bonds held when they were cut, (M/2) s^2 per direction [J]
+    plane_energy: float  # the part of it in bonds across the notch's mid-plane (the crack's own) [J]
+    plane_area: float  # broken bonds across that plane, as bond_area below [m^2]
     bond_area: float  # sum over the bonds broken in the run of their energy at the threshold, / G_c [m^2]
     area: float  # the ligament [m^2]
     seconds: float
@@ -172,7 +174,10 @@ def pull(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.4, af
     sim = Sim(scene)
     model, state, solver = sim.model, sim.state, sim.solver
     if precrack:
-        state.bond_active[crossing_notch(model, scene, bar)] = 0
+        cracked = crossing_notch(model, scene, bar)
+        own = np.repeat(np.arange(len(model.bond_start) - 1), np.diff(model.bond_start))
+        model.particle_precut = np.bincount(own[cracked], minlength=len(model.rest_x)).astype(np.int64)
+        state.bond_active[cracked] = 0
         damage(state.bond_start, state.bond_active, state.particle_damage, state.particle_crack)
         solver.bind(state)
     initial = state.bond_active == 0
@@ -182,7 +187,10 @@ def pull(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.4, af
     own = np.repeat(np.arange(len(model.bond_start) - 1), np.diff(model.bond_start))
     rest = np.linalg.norm(model.rest_x[model.bond_nbr] - model.rest_x[own], axis=1)
     weight = critical_bond_energy(model, 0, modulus, 1.0)  # energy per directed bond / s^2
-    tally = {"work": 0.0, "cut": 0.0, "bonds_cut": 0, "x": state.particle_x.copy(), "active": state.bond_active.copy()}
+    mid = model.rest_x[b.start:b.end, 0].mean()
+    across = (model.rest_x[own, 0] < mid) != (model.rest_x[model.bond_nbr, 0] < mid)
+    tally = {"work": 0.0, "cut": 0.0, "plane": 0.0, "bonds_cut": 0, "x": state.particle_x.copy(),
+             "active": state.bond_active.copy()}
 
     def on_substep(st, dt):
         tally["work"] += grip_work(st.grid, model.origin, 1.0 / model.dx, dt, held, st.particle_x,
@@ -192,6 +200,7 @@ def pull(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.4, af
             x = tally["x"]
             s = np.linalg.norm(x[model.bond_nbr[new]] - x[own[new]], axis=1) / rest[new] - 1.0
             tally["cut"] += float(weight[new] @ s**2)
+            tally["plane"] += float(weight[new] @ (s**2 * across[new]))
             tally["active"][:] = st.bond_active
             tally["bonds_cut"] = st.bonds_cut
         tally["x"][:] = st.particle_x
@@ -214,7 +223,8 @@ def pull(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.4, af
     return Result(cell=cell, spacing=b.spacing, horizon=b.horizon, particles=b.end - b.start,
                   threshold=b.fracture.threshold, expected=energy * bar.ligament(), large=large_pieces(state, model),
                   separation=separation, dissipated=balance(), before=before, work_before=work_before, stored=stored,
-                  cut_energy=tally["cut"], bond_area=float(crit[broken].sum()) / energy,
+                  cut_energy=tally["cut"], plane_energy=tally["plane"], bond_area=float(crit[broken].sum()) / energy,
+                  plane_area=float(crit[broken & across].sum()) / energy,
                   area=bar.ligament(), seconds=time.perf_counter() - t0)
 
 
