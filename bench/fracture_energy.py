@@ -1,6 +1,6 @@
 """Fracture energy against resolution: a notched bar pulled apart slowly (pdmpm_cli/study/fracture.py).
 
-Usage: python bench/fracture_energy.py [--cells 0.04 0.03 0.02] [--energy 2.0] [--damage-resistance 1.0] [--precrack]
+Usage: python bench/fracture_energy.py [--cells 0.04 0.03 0.02] [--energy 2.0] [--damage-resistance 1.0]
 Prints one row per grid cell size: large pieces (over 5 % of the mass), time of first separation, the strain
 energy stored when the first bond broke (what an unstable crack releases as motion), the energy balance
 D = W - strain - kinetic against G_c A (A the ligament), split into what the bonds held when they were cut (and the
@@ -32,12 +32,11 @@ def main():
     ap.add_argument("--cells", type=float, nargs="+", default=[0.04, 0.03, 0.02])
     ap.add_argument("--energy", type=float, default=2.0, help="G_c [J/m^2]")
     ap.add_argument("--damage-resistance", type=float, default=1.0)
-    ap.add_argument("--precrack", action="store_true", help="a zero-width crack (bonds broken at t = 0), no cutout")
     args = ap.parse_args()
     print("| " + " | ".join(COLUMNS) + " |")
     print("|" + "---|" * len(COLUMNS))
     for cell in args.cells:
-        r = pull(cell, args.energy, damage_resistance=args.damage_resistance, precrack=args.precrack)
+        r = pull(cell, args.energy, damage_resistance=args.damage_resistance)
         print("| " + " | ".join(row(r)) + " |", flush=True)
 
 

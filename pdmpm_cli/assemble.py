@@ -112,14 +112,5 @@ def build_model(scene: Scene, disc: Discretization) -> Model:
         wind_velocity=np.asarray(scene.wind.velocity if scene.wind else (0.0, 0.0, 0.0), dtype=np.float64),
         wind_drag=scene.wind.drag if scene.wind else 0.0,
         origin=lo, dx=g.cell_size, grid_shape=tuple(int(c) + 1 for c in cells),
-        wall_boundary=BOUNDARY_CODES[g.boundary], wall_friction=g.friction, bond_cracked=disc.bond_cracked,
-        particle_precut=precut_counts(disc),
+        wall_boundary=BOUNDARY_CODES[g.boundary], wall_friction=g.friction,
     )
-
-
-def precut_counts(disc: Discretization) -> np.ndarray:
-    """Per particle, its bonds broken from the start (a fracturing body's cutouts), or (0,) if there are none."""
-    if not len(disc.bond_cracked):
-        return np.zeros(0, dtype=np.int64)
-    owner = np.repeat(np.arange(disc.n_particles), np.diff(disc.bond_start))
-    return np.bincount(owner[disc.bond_cracked], minlength=disc.n_particles).astype(np.int64)

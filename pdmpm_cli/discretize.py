@@ -124,8 +124,6 @@ class Discretization:
     notes: list[str]  # repairs made to input meshes, reported as warnings
     collider_samples: dict = field(default_factory=dict)  # scene collider index -> DistanceSamples of a mesh collider
     collider_meshes: dict = field(default_factory=dict)  # scene collider index -> its SurfaceMesh, placed, at t = 0
-    # (n_bonds,) bonds through a fracturing body's cutouts, broken at t = 0; (0,) if none
-    bond_cracked: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     @property
     def n_particles(self) -> int:
@@ -505,7 +503,7 @@ def sample_bodies(scene: Scene, base_dir: Path) -> Discretization:
     rest_x = np.concatenate(xs)
     body_ids = np.concatenate([np.full(e - s, i, dtype=np.int32) for i, (s, e) in enumerate(ranges)])
     bond_start, bond_nbr = build_families(rest_x, ranges, horizon, pairs)
-    bond_start, bond_nbr, cracked = cut_bonds_through(scene, base_dir, rest_x, ranges, bond_start, bond_nbr)
+    bond_start, bond_nbr = cut_bonds_through(scene, base_dir, rest_x, ranges, bond_start, bond_nbr)
     has_pins = any(m.any() for m in pinned)
     return Discretization(
         rest_x=rest_x,
@@ -524,18 +522,13 @@ def sample_bodies(scene: Scene, base_dir: Path) -> Discretization:
         pin_stop=np.concatenate(pin_t) if has_pins else np.zeros(0),
         meshes=embedded,
         notes=notes,
-        bond_cracked=cracked,
     )
 
 
 def cut_bonds_through(scene: Scene, base_dir: Path, rest_x, ranges, bond_start, bond_nbr):
-    """Bonds whose segment passes through a cutout (tested at 1/4, 1/2 and 3/4 of its length), so a notch narrower
-    than the horizon is still a real notch. A body without fracture loses them. A body with fracture keeps them,
-    broken from the start (the returned mask, or (0,) if none): its notch faces are then crack-surface particles,
-    off the grid, as a crack's are, so a notch narrower than a cell is not bridged by the grid's velocity field.
-    Returns bond_start, bond_nbr and the mask."""
+    """Remove bonds whose segment passes through a cutout (tested at 1/4, 1/2 and 3/4 of its length), so a
+    notch narrower than the horizon is still a real notch."""
     keep = np.ones(len(bond_nbr), dtype=bool)
-    cracked = np.zeros(len(bond_nbr), dtype=bool)
     for body, (start, end) in zip(scene.bodies, ranges):
         cuts = [shape_region(c, base_dir) for c in getattr(body.geometry, "cutouts", [])]
         if not cuts:
@@ -543,16 +536,10 @@ def cut_bonds_through(scene: Scene, base_dir: Path, rest_x, ranges, bond_start, 
         b0, b1 = bond_start[start], bond_start[end]
         p = np.repeat(np.arange(start, end), np.diff(bond_start[start:end + 1]))
         q = bond_nbr[b0:b1]
-        through = np.zeros(b1 - b0, dtype=bool)
         for t in (0.25, 0.5, 0.75):
             mid = rest_x[p] + t * (rest_x[q] - rest_x[p])
             for cut in cuts:
-                through |= cut.inside(mid)
-        if body.fracture is not None:
-            cracked[b0:b1] = through
-        else:
-            keep[b0:b1] = ~through
-    if not keep.all():
-        bond_start, bond_nbr = drop_bonds(bond_start, bond_nbr, keep)
-        cracked = cracked[keep]
-    return bond_start, bond_nbr, cracked if cracked.any() else np.zeros(0, dtype=bool)
+                keep[b0:b1] &= ~cut.inside(mid)
+    if keep.all():
+        return bond_start, bond_nbr
+    return drop_bonds(bond_start, bond_nbr, keep)

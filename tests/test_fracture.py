@@ -16,7 +16,6 @@ DELTA = 2.0 * H  # horizon [m]
 DX = 2.0 * H  # grid cell [m]: 2 particles per cell and axis, as in the scenes
 ORIGIN = np.full(3, -0.1)
 CELLS = np.array([40, 40, 40], dtype=np.int64)
-NO_PRECUT = np.zeros(0, dtype=np.int64)  # no notch: every broken bond counts in p_inactive
 NO_EP = np.zeros(0)
 
 
@@ -55,7 +54,7 @@ def fracture_loop(threshold, start, end, x, rest_x, bond_start, bond_nbr, bond_a
     inactive, lmax, bmax = np.zeros(n), np.zeros(n), np.zeros(n, np.int64)
     cut = 0
     for update in range(max_updates):
-        inactive_fraction(x, ORIGIN, 1.0 / DX, CELLS, bond_start, bond_active, NO_PRECUT, inactive)
+        inactive_fraction(x, ORIGIN, 1.0 / DX, CELLS, bond_start, bond_active, inactive)
         if bond_criterion(start, end, threshold, 1.0, x, rest_x, bond_start, bond_nbr, bond_active, NO_EP, inactive,
                           lmax, bmax) == 0:
             return cut, update
@@ -78,7 +77,7 @@ def test_inactive_fraction_counts_broken_bonds_per_cell():
     broken = ((src == 0) & (bond_nbr == 1)) | ((src == 2) & (bond_nbr == 3))
     active[broken | broken[rev]] = 0
     out = np.full(6, -1.0)
-    inactive_fraction(x, np.zeros(3), 5.0, np.array([4, 4, 4], dtype=np.int64), bond_start, active, NO_PRECUT, out)
+    inactive_fraction(x, np.zeros(3), 5.0, np.array([4, 4, 4], dtype=np.int64), bond_start, active, out)
     # cell (0,0,0): particles 0, 1, 5 own 2 + 2 + 1 bonds, 2 broken (0-1 both ways); cell (1,0,0): 2, 3 own
     # 2 + 1 bonds, 2 broken (2-3 both ways); cell (1,1,0): particle 4 has no bonds
     assert out.tolist() == [2 / 5, 2 / 5, 2 / 3, 2 / 3, 0.0, 2 / 5]
@@ -95,7 +94,7 @@ def test_inactive_fraction_is_independent_of_thread_count():
         for threads in (1, numba.config.NUMBA_NUM_THREADS):
             numba.set_num_threads(threads)
             out = np.zeros(len(x))
-            inactive_fraction(x, ORIGIN, 1.0 / DX, CELLS, bond_start, active, NO_PRECUT, out)
+            inactive_fraction(x, ORIGIN, 1.0 / DX, CELLS, bond_start, active, out)
             runs.append(out)
     finally:
         numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)

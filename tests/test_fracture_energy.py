@@ -92,7 +92,7 @@ def test_pulled_bar_breaks_at_its_notch_and_absorbs_at_least_g_c_a():
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason="the grid bridges the notch, so the bar stores more than G_c A before it "
                    "breaks and the transfers damp what the snap releases; the plane cuts break several times the "
-                   "ligament's bonds: D is 2.5-2.9 G_c A "
+                   "ligament's bonds: D is 3-4 G_c A "
                    "(docs/results.md, 'Fracture energy')")
 @pytest.mark.parametrize("cell", [0.04, 0.03, 0.02])
 def test_pulled_bar_absorbs_g_c_a_at_three_resolutions(cell):
@@ -103,46 +103,14 @@ def test_pulled_bar_absorbs_g_c_a_at_three_resolutions(cell):
     assert r.dissipated == pytest.approx(r.expected, rel=0.15)
 
 
-@pytest.mark.parametrize("fracture", [True, False])
-def test_a_fracturing_notch_is_a_crack_from_the_start(fracture):
-    """A notch half a cell wide: in a body with fracture, the bonds through it stay in the families, broken from
-    t = 0, so its faces are crack-surface particles (off the grid) as a grown crack's are, and eq. 21's p_inactive
-    does not count them; without fracture they are dropped, as before. Either way no intact bond crosses the notch."""
-    cell = 0.04
-    scene = block(cell, size=0.24)
-    c = np.array(scene["bodies"][0]["geometry"]["shape"]["center"])
-    notch = {"type": "box", "center": c.tolist(), "size": [cell / 2, 1.0, 1.0]}  # through the whole section
-    scene["bodies"][0]["geometry"]["cutouts"] = [notch]
-    if not fracture:
-        scene["bodies"][0].pop("fracture")
-    sim = Sim(scene)
-    m, st = sim.model, sim.state
-    own = np.repeat(np.arange(m.n_particles), np.diff(m.bond_start))
-    across = (m.rest_x[own, 0] < c[0]) != (m.rest_x[m.bond_nbr, 0] < c[0])
-    if fracture:
-        assert across.any() and np.array_equal(m.bond_cracked, across)
-        assert not st.bond_active[across].any() and st.bond_active[~across].all()
-        faces = np.zeros(m.n_particles, bool)
-        faces[own[across]] = True
-        assert np.array_equal(st.particle_crack == 1, faces) and np.all(st.particle_damage[faces] > 0)
-        assert np.array_equal(sim.solver.crack_index, np.flatnonzero(faces))
-        # eq. 21's p_inactive leaves the notch's bonds out, as when they were never made: zero before any break
-        assert np.array_equal(m.particle_precut, np.bincount(own[across], minlength=m.n_particles))
-        sim.solver.backend.inactive_fraction(sim.solver, st)
-        assert not st.particle_inactive.any()
-    else:
-        assert not across.any() and len(m.bond_cracked) == 0
-
-
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="the grid still bridges a slit narrower than its B-splines' reach: the free "
-                   "half follows the pulled one (docs/method.md, 'Cutouts')")
-@pytest.mark.parametrize("fracture", [True, False])
-def test_the_grid_does_not_pull_across_a_slit(fracture):
+@pytest.mark.xfail(strict=True, reason="the grid bridges a slit narrower than its B-splines' reach: the free half "
+                   "follows the pulled one (docs/method.md, 'Fracture energy')")
+def test_the_grid_does_not_pull_across_a_slit():
     """Newton: no force crosses a gap, so the free half of a slit bar stays where it is while the other half is
     pulled away (its mean displacement under 10 % of the pulled end's)."""
-    moved = slit_drag(fracture)
-    print(f"\nfracture {fracture}: the free half moved {moved:.2f} of the pulled end")
+    moved = slit_drag()
+    print(f"\nthe free half moved {moved:.2f} of the pulled end")
     assert abs(moved) < 0.1
 
 

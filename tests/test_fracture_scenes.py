@@ -35,9 +35,8 @@ def fragments(sim, body=0):
 
 
 def test_notched_bar_breaks_in_two_at_the_notch(sim_factory):
-    """Grips pull a notched bar apart slowly: it breaks into two pieces at the notch. Chips (each < 1 % of the bar,
-    5 % of it together) come off the crack faces, which are crack particles off the grid from the start (the notch
-    is a crack), as the stored energy is released, but no dust."""
+    """Grips pull a notched bar apart slowly: it breaks into two pieces at the notch. A few chips (each < 1 %
+    of the bar) come off the crack faces as the stored energy is released, but no dust."""
     sim = sim_factory(base=BAR)
     assert {"crack", "fracture", "bond_active", "particle_damage"} <= set(sim.plan.phases) | set(sim.plan.fields)
     sim.advance(0.3)
@@ -50,7 +49,7 @@ def test_notched_bar_breaks_in_two_at_the_notch(sim_factory):
           f"{sim.state.bonds_cut}, damaged particles {np.count_nonzero(sim.state.particle_damage)}, "
           f"x-range of damage {np.round(np.percentile(x0[sim.state.particle_damage > 0, 0], [1, 99]), 3).tolist()}, "
           f"gap between the halves {gap * 1e3:.1f} mm")
-    assert sizes[:2].sum() > 0.95 * n and sizes[2] < 0.01 * n
+    assert sizes[:2].sum() > 0.97 * n and sizes[2] < 0.01 * n
     assert np.all(left == left[0]) and np.all(right == right[0]) and left[0] != right[0]
     damaged = x0[sim.state.particle_damage > 0, 0]
     assert np.all(np.abs(damaged - 0.3) < 0.1)  # the crack stays at the notch (the grips are 0.16 m away)

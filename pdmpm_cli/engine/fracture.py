@@ -56,17 +56,9 @@ def broken_bonds(p, bond_start, bond_active):
     return nb
 
 
-@njit(cache=True, inline="always")
-def precut_bonds(p, particle_precut):
-    """Number of p's bonds broken from the start (through a cutout: a notch), which eq. 21 does not count."""
-    return particle_precut[p] if particle_precut.shape[0] > 0 else 0
-
-
 @njit(parallel=True, cache=True)
-def inactive_fraction(particle_x, origin, inv_dx, cells, bond_start, bond_active, particle_precut, particle_inactive):
+def inactive_fraction(particle_x, origin, inv_dx, cells, bond_start, bond_active, particle_inactive):
     """p_inactive of eq. 21: broken / all bonds of the particles in each particle's cell -> particle_inactive.
-    A notch's bonds (broken from the start, particle_precut) count in neither: the notch's tip resists as it did
-    when those bonds were never made.
 
     Cells are grouped by sorting their keys (the GPU counts into dense cell arrays with atomics instead); the counts
     are integers, so the result depends neither on the thread count nor on the backend."""
@@ -76,7 +68,7 @@ def inactive_fraction(particle_x, origin, inv_dx, cells, bond_start, bond_active
     total = 0
     for p in prange(n):
         key[p] = cell_key(particle_x, p, origin, inv_dx, cells)
-        broken[p] = broken_bonds(p, bond_start, bond_active) - precut_bonds(p, particle_precut)
+        broken[p] = broken_bonds(p, bond_start, bond_active)
         total += broken[p]
     if total == 0:
         particle_inactive[:] = 0.0
@@ -91,7 +83,7 @@ def inactive_fraction(particle_x, origin, inv_dx, cells, bond_start, bond_active
         while j < n and key[order[j]] == k:
             p = order[j]
             nb += broken[p]
-            nt += bond_start[p + 1] - bond_start[p] - precut_bonds(p, particle_precut)
+            nt += bond_start[p + 1] - bond_start[p]
             j += 1
         frac = nb / nt if nt > 0 else 0.0
         for m in range(i, j):

@@ -4,7 +4,7 @@ scene itself."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -57,9 +57,6 @@ class Model:
     grid_shape: tuple[int, int, int]  # nodes per axis
     wall_boundary: int  # colliders.STICKY, SLIP or SEPARATE
     wall_friction: float
-    # (n_bonds,) bonds broken at t = 0 (through a fracturing body's cutouts: a notch is a crack), or (0,)
-    bond_cracked: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
-    particle_precut: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (n,) of them, or (0,)
 
     @property
     def n_particles(self) -> int:

@@ -27,8 +27,7 @@ RUNAWAY_FACTOR = 10.0  # kinetic energy above this multiple of the energy budget
 
 def initial_state(model: Model, plan: Plan, velocity: np.ndarray, velocity_gradient: np.ndarray) -> State:
     """The State at t = 0: the Plan's arrays, particles at rest positions with their initial velocity and APIC
-    matrix, the reference families, the reference bond factors (w V_q, 1 / |xi|) where they exist, and the bonds
-    that start broken (through a fracturing body's cutouts) with the damage and crack particles they make."""
+    matrix, the reference families, and the reference bond factors (w V_q, 1 / |xi|) where they exist."""
     declared = declared_fields()
     shapes = {name: shape for name, (shape, _) in plan.fields.items() if name in declared}
     state = State.allocate(declared, shapes, {
@@ -37,9 +36,6 @@ def initial_state(model: Model, plan: Plan, velocity: np.ndarray, velocity_gradi
     if state.has("bond_wv"):
         bond_reference_terms(model.rest_x, model.particle_volume, model.bond_start, model.bond_nbr,
                              model.particle_body, model.body_horizon, state.bond_wv, state.bond_inv_len)
-    if len(model.bond_cracked) and state.has("bond_active"):
-        state.bond_active[model.bond_cracked] = 0
-        damage(state.bond_start, state.bond_active, state.particle_damage, state.particle_crack)
     return state
 
 

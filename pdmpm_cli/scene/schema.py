@@ -151,8 +151,7 @@ class CloudGeometry(Strict):
     )
     cutouts: list[Shape] = Field(
         default_factory=list, description="Shapes removed from the body (notches, holes): particles inside any "
-        "of them are not created, and no intact bond crosses them (with fracture, the bonds through them start "
-        "broken: a notch is a crack, its faces crack-surface particles).",
+        "of them are not created, and no bond crosses them.",
     )
 
 

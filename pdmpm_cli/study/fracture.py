@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from pdmpm_cli.engine.fracture import damage, pieces
+from pdmpm_cli.engine.fracture import pieces
 from pdmpm_cli.engine.transfer import stencil
 from pdmpm_cli.study.sim import Sim
 
@@ -111,7 +111,7 @@ class Result:
     cut_energy: float  # energy the bonds held when they were cut, (M/2) s^2 per direction [J]
     plane_energy: float  # the part of it in bonds across the notch's mid-plane (the crack's own) [J]
     plane_area: float  # broken bonds across that plane, as bond_area below [m^2]
-    bond_area: float  # sum over the bonds broken in the run of their energy at the threshold, / G_c [m^2]
+    bond_area: float  # sum over broken bonds of their energy at the threshold, / G_c [m^2]
     area: float  # the ligament [m^2]
     seconds: float
 
@@ -142,17 +142,6 @@ def crossing_energy(model, body: int, modulus: float, plane: float, lo, hi) -> f
     return float(energy[inside].sum()) / float(np.prod(np.asarray(hi) - np.asarray(lo)))
 
 
-def crossing_notch(model, scene: dict, bar: Bar) -> np.ndarray:
-    """Bonds crossing the plane x = the bar's middle within the notch's depth from the top face."""
-    c = scene["bodies"][0]["geometry"]["shape"]["center"]
-    own = np.repeat(np.arange(len(model.bond_start) - 1), np.diff(model.bond_start))
-    x, q = model.rest_x, model.bond_nbr
-    cross = (x[own, 0] < c[0]) != (x[q, 0] < c[0])
-    t = (c[0] - x[own, 0]) / np.where(cross, x[q, 0] - x[own, 0], 1.0)
-    y = x[own, 1] + t * (x[q, 1] - x[own, 1])
-    return cross & (y > c[1] + bar.section / 2 - bar.notch_depth)
-
-
 def large_pieces(state, model, body: int = 0) -> int:
     """Pieces of the body over LARGE of its mass."""
     b = model.bodies[body]
@@ -162,25 +151,13 @@ def large_pieces(state, model, body: int = 0) -> int:
 
 
 def pull(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.4, after: float = 0.1,
-         sampling: str = "relaxed", damage_resistance: float = 1.0, precrack: bool = False) -> Result:
-    """Pull the bar at `cell` until `after` seconds past its first separation (or `duration`); the energy balance.
-    `precrack`: no notch cut out; instead the bonds crossing the notch's mid-plane start broken (a crack of zero
-    width, whose faces are a spacing apart instead of two)."""
+         sampling: str = "relaxed", damage_resistance: float = 1.0) -> Result:
+    """Pull the bar at `cell` until `after` seconds past its first separation (or `duration`); the energy balance."""
     t0 = time.perf_counter()
     scene = bar_scene(cell, energy, bar, duration, sampling=sampling)
     scene["bodies"][0]["fracture"]["damage_resistance"] = damage_resistance
-    if precrack:
-        scene["bodies"][0]["geometry"].pop("cutouts")
     sim = Sim(scene)
     model, state, solver = sim.model, sim.state, sim.solver
-    if precrack:
-        cracked = crossing_notch(model, scene, bar)
-        own = np.repeat(np.arange(len(model.bond_start) - 1), np.diff(model.bond_start))
-        model.particle_precut = np.bincount(own[cracked], minlength=len(model.rest_x)).astype(np.int64)
-        state.bond_active[cracked] = 0
-        damage(state.bond_start, state.bond_active, state.particle_damage, state.particle_crack)
-        solver.bind(state)
-    initial = state.bond_active == 0
     b = model.bodies[0]
     modulus = LAM + 2.0 * MU
     held = np.flatnonzero(model.pin_mask).astype(np.int64)
@@ -219,7 +196,7 @@ def pull(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.4, af
             separation = state.time
             end = min(duration, state.time + after)
     crit = critical_bond_energy(model, 0, modulus, b.fracture.threshold)
-    broken = (state.bond_active == 0) & ~initial  # the notch's bonds start broken: not the run's
+    broken = state.bond_active == 0
     return Result(cell=cell, spacing=b.spacing, horizon=b.horizon, particles=b.end - b.start,
                   threshold=b.fracture.threshold, expected=energy * bar.ligament(), large=large_pieces(state, model),
                   separation=separation, dissipated=balance(), before=before, work_before=work_before, stored=stored,
@@ -256,19 +233,14 @@ def plate_scene(cell: float, energy: float, size: float = 0.48, thickness: float
 
 
 def damage_band(model, state, body: int = 0, grip: float = 0.0) -> dict:
-    """Where a mode-I crack's damage (bonds broken in the run) lies, among the particles more than `grip` + a horizon
-    from the top and bottom faces (damage at the grips' edges is counted apart, as `at_grips`): the damaged
-    particles' rest distance from the notch's plane (y) as percentiles 50 / 90 / 100 [m], and how far in x the
-    damage reached [m]."""
+    """Where a mode-I crack's damage lies, among the particles more than `grip` + a horizon from the top and bottom
+    faces (damage at the grips' edges is counted apart, as `at_grips`): the damaged particles' rest distance from
+    the notch's plane (y) as percentiles 50 / 90 / 100 [m], and how far in x the damage reached [m]."""
     b = model.bodies[body]
     x0 = model.rest_x[b.start:b.end]
     lo, hi = x0[:, 1].min(), x0[:, 1].max()
     mid = 0.5 * (lo + hi)
-    run = state.bond_active == 0
-    if len(model.bond_cracked):
-        run &= ~model.bond_cracked  # a notch's bonds start broken: its faces are not damage of the run
-    own = np.repeat(np.arange(len(state.bond_start) - 1), np.diff(state.bond_start))
-    damaged = np.bincount(own[run], minlength=len(state.bond_start) - 1)[b.start:b.end] > 0
+    damaged = state.particle_damage[b.start:b.end] > 0
     inner = np.abs(x0[:, 1] - mid) < 0.5 * (hi - lo) - grip - b.horizon
     hit = damaged & inner
     out = {"damaged": int(hit.sum()), "at_grips": int((damaged & ~inner).sum())}
@@ -279,11 +251,10 @@ def damage_band(model, state, body: int = 0, grip: float = 0.0) -> dict:
                   "reach": float(x0[hit, 0].max() - x0[:, 0].min())}
 
 
-def slit_drag(fracture: bool, cell: float = 0.02, speed: float = 0.1, duration: float = 0.05) -> float:
-    """A bar cut through by a slit half a cell wide, its right end pulled away at `speed`: the left half's mean
-    displacement over speed x duration. No force crosses the gap, so the answer is 0; the grid couples material
-    closer than its B-splines' reach (two cells either side). With fracture the slit's faces are crack particles
-    (off the grid); without it they are ordinary particles."""
+def slit_drag(cell: float = 0.02, speed: float = 0.1, duration: float = 0.05) -> float:
+    """A bar cut through by a slit half a cell wide (no bond crosses it), its right end pulled away at `speed`: the
+    left half's mean displacement over speed x duration. No force crosses the gap, so the answer is 0; the grid
+    couples material closer than its B-splines' reach (two cells either side)."""
     c = [0.2, 0.1, 0.1]
     body = {"name": "bar",
             "geometry": {"mode": "cloud", "sampling": "lattice",
@@ -292,8 +263,6 @@ def slit_drag(fracture: bool, cell: float = 0.02, speed: float = 0.1, duration: 
             "material": {"model": "elastic", "density": RHO, "lam": LAM, "mu": MU},
             "pins": [{"region": {"type": "box", "center": [c[0] + 0.1, c[1], c[2]], "size": [0.04, 0.2, 0.2]},
                       "velocity": [speed, 0.0, 0.0]}]}
-    if fracture:
-        body["fracture"] = {"energy": 2.0}
     sim = Sim({"simulation": {"duration": duration, "fps": 100},
                "grid": {"cell_size": cell, "domain": {"min": [0, 0, 0], "max": [0.5, 0.2, 0.2]}},
                "gravity": [0, 0, 0], "bodies": [body]})

@@ -64,7 +64,7 @@ class CpuBackend:
     def inactive_fraction(self, solver, state):
         m = solver.model
         inactive_fraction(state.particle_x, m.origin, 1.0 / m.dx, solver.cells, state.bond_start, state.bond_active,
-                          m.particle_precut, state.particle_inactive)
+                          state.particle_inactive)
 
     def crack_particles_changed(self, solver, state):
         """particle_crack changed on the host: nothing to upload here."""

@@ -128,7 +128,6 @@ d_crack_contact_at = device(fracture.crack_contact_at)
 d_crack_update_at = device(fracture.crack_update_at)
 d_cell_key = device(fracture.cell_key)
 d_broken_bonds = device(fracture.broken_bonds)
-d_precut_bonds = device(fracture.precut_bonds)
 
 
 @cuda.jit(device=True)
@@ -248,15 +247,14 @@ def zero_cells(cell_bonds, cell_broken):
 
 
 @cuda.jit
-def count_cells(particle_x, origin, inv_dx, cells, bond_start, bond_active, particle_precut, cell_bonds, cell_broken):
-    """Each particle's bonds and broken bonds, less a notch's, into its cell's counts (eq. 21's p_inactive;
-    integers, so the atomic order does not matter)."""
+def count_cells(particle_x, origin, inv_dx, cells, bond_start, bond_active, cell_bonds, cell_broken):
+    """Each particle's bonds and broken bonds into its cell's counts (eq. 21's p_inactive; integers, so the atomic
+    order does not matter)."""
     p = cuda.grid(1)
     if p < particle_x.shape[0]:
         c = d_cell_key(particle_x, p, origin, inv_dx, cells)
-        pre = d_precut_bonds(p, particle_precut)
-        cuda.atomic.add(cell_bonds, c, bond_start[p + 1] - bond_start[p] - pre)
-        cuda.atomic.add(cell_broken, c, d_broken_bonds(p, bond_start, bond_active) - pre)
+        cuda.atomic.add(cell_bonds, c, bond_start[p + 1] - bond_start[p])
+        cuda.atomic.add(cell_broken, c, d_broken_bonds(p, bond_start, bond_active))
 
 
 @cuda.jit
@@ -402,7 +400,7 @@ class CudaBackend:
         m, a, e = solver.model, solver.a, self.extra
         launch(zero_cells, a.cell_bonds.shape[0], a.cell_bonds, a.cell_broken)
         launch(count_cells, m.n_particles, a.particle_x, solver.m.origin, 1.0 / m.dx, e.cells, a.bond_start,
-               a.bond_active, solver.m.particle_precut, a.cell_bonds, a.cell_broken)
+               a.bond_active, a.cell_bonds, a.cell_broken)
         launch(cell_fraction, m.n_particles, a.particle_x, solver.m.origin, 1.0 / m.dx, e.cells, a.cell_bonds,
                a.cell_broken, a.particle_inactive)
 
