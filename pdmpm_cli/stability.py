@@ -1,5 +1,5 @@
-"""Stability sweep: stiff, near-incompressible, stretched,
-compressed, impacting, shattering and cloth-like bodies, each run with the automatic time step and classified.
+"""Stability sweep: stiff, near-incompressible, stretched, compressed, impacting, shattering and cloth-like bodies
+and liquids, each run with the automatic time step and classified.
 
 Every case is a small scene dict (about 500 particles) built from `BASE`, plus what the scene language cannot say:
 an initial homogeneous stretch of the particles about their centre (`prestretch`) and impact speeds given in units
@@ -169,6 +169,7 @@ def cases() -> list[Case]:
     out.append(Case("shell_ball", "shell", "hollow ball, 1 layer", "closed single-layer shell hits the floor",
                     {"bodies": [shell], "colliders": [{**FLOOR, "point": [0, 0.43, 0]}]}, impact=1.0))
     out += discretisation_cases(vib, gravity)
+    out += fluid_cases(gravity)
     return out
 
 
@@ -218,6 +219,31 @@ def discretisation_cases(vib, gravity) -> list[Case]:
                     "colliders": [{"type": "mesh", "path": MESH_FILES[1], "translate": [0.35, 0.6, 0.6],
                                    "velocity": [0.5, 0.0, 0.0]}]}, steps=300))
     return out
+
+
+def fluid_cases(gravity) -> list[Case]:
+    """Liquids (the viscoelastic model with its whole shear relaxing and the volume-ratio pressure p = K (1 - J)):
+    water's real bulk modulus, a paste a million times more viscous than water, a fast splash and a pour onto a
+    plate that slides away underneath."""
+    def liquid(**kw) -> dict:
+        material = {"model": "viscoelastic", "density": 1000.0, "lam": 5e3, "mu": 500.0, "relaxation_time": 0.05,
+                    "relaxing_fraction": 1.0} | kw
+        return _body(material=material)
+
+    floor = {**FLOOR, "boundary": "sticky"}
+    return [
+        Case("fluid_water_bulk", "fluid", "K = 2.2 GPa (water)", "the pressure's sound speed (1480 m/s) sets the "
+             "step", {"bodies": [liquid(bulk_modulus=2.2e9)], "colliders": [floor], "gravity": gravity},
+             steps=1000),
+        Case("fluid_viscous", "fluid", "viscosity 1e5 Pa s", "a paste: mu = 1e5 Pa relaxing over 1 s",
+             {"bodies": [liquid(mu=1e5, lam=1e5, relaxation_time=1.0)], "colliders": [floor], "gravity": gravity},
+             impact=1.0),
+        Case("fluid_splash", "fluid", "3 dx/dt", "a liquid block hits the floor fast",
+             {"bodies": [liquid()], "colliders": [floor]}, impact=3.0),
+        Case("fluid_moving_plate", "fluid", "plate at 1 m/s", "a liquid falls on a sticky plate sliding away",
+             {"bodies": [liquid()], "gravity": gravity,
+              "colliders": [{**floor, "velocity": [1.0, 0.0, 0.0]}]}, steps=1000),
+    ]
 
 
 MESH_FILES = ("bowl.ply", "pusher.ply")  # written by mesh_folder: a bowl (r 0.2 m, wall 4 cm), a 0.2 m box

@@ -14,7 +14,7 @@ def test_sweep_covers_every_category_with_40_cases():
     names = [c.name for c in cases]
     assert len(cases) >= 40 and len(set(names)) == len(names)
     assert {c.category for c in cases} >= {"stiffness", "cfl", "incompressible", "stretch", "compression", "impact",
-                                           "plastic", "broken", "shell"}
+                                           "plastic", "broken", "shell", "fluid"}
     stiff = [c for c in cases if c.category == "stiffness"]
     assert len(stiff) >= 7  # 6-8 decades at fixed geometry
     assert set(st.QUICK) <= set(names) and set(st.THRESHOLD_CASES) <= set(names)
