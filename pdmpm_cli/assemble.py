@@ -7,6 +7,7 @@ import numpy as np
 
 from pdmpm_cli.engine.bonds import calibration_coefficients, reference_family_terms
 from pdmpm_cli.engine.colliders import BOUNDARY_CODES, BOX, CYLINDER, MESH, PLANE, ROW, SPHERE
+from pdmpm_cli.engine.fracture import critical_stretch
 from pdmpm_cli.discretize import Discretization
 from pdmpm_cli.engine.materials import MATERIALS, kind_of
 from pdmpm_cli.engine.model import BodyParams, FractureParams, Model
@@ -67,18 +68,28 @@ def flow_speed(scene: Scene, x: np.ndarray, body) -> float:
     return max(speeds)
 
 
+def fracture_params(frac, kind: str, params, horizon: float) -> FractureParams | None:
+    """The body's eq. 21 threshold: as given, or from its fracture energy, P-wave modulus and horizon."""
+    if frac is None:
+        return None
+    if frac.energy is None:
+        return FractureParams(frac.threshold, frac.damage_resistance)
+    modulus = MATERIALS[kind].constants(params)["p_wave_modulus"]
+    return FractureParams(critical_stretch(frac.energy, modulus, horizon), frac.damage_resistance, frac.energy)
+
+
 def body_params(scene: Scene, disc: Discretization) -> tuple[BodyParams, ...]:
     out = []
     for i, (body, (start, end)) in enumerate(zip(scene.bodies, disc.body_ranges)):
         kind = kind_of(body.material)
-        frac = body.fracture
         params = MATERIALS[kind].params(body.material)
         if MATERIALS[kind].with_flow_speed is not None:
             params = MATERIALS[kind].with_flow_speed(params, flow_speed(scene, disc.rest_x[start:end], body))
+        horizon = float(disc.body_horizon[i])
         out.append(BodyParams(
             name=body.name, kind=kind, params=params, start=start, end=end,
-            spacing=float(disc.body_spacing[i]), horizon=float(disc.body_horizon[i]),
-            fracture=FractureParams(frac.threshold, frac.damage_resistance) if frac is not None else None))
+            spacing=float(disc.body_spacing[i]), horizon=horizon,
+            fracture=fracture_params(body.fracture, kind, params, horizon)))
     return tuple(out)
 
 

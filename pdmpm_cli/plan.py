@@ -69,7 +69,9 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
         bodies.append(BodyPlan(
             name=b.name, model=b.kind, particles=b.end - b.start,
             bonds=int(disc.bond_start[b.end] - disc.bond_start[b.start]), spacing=b.spacing, horizon=b.horizon,
-            effective=c, dt_bond=float(dt_p[b.start:b.end].min()) if b.end > b.start else math.inf))
+            effective=c, dt_bond=float(dt_p[b.start:b.end].min()) if b.end > b.start else math.inf,
+            fracture_threshold=b.fracture.threshold if b.fracture else None,
+            fracture_energy=b.fracture.energy if b.fracture else None))
     wave = max(b.effective["wave_speed"] for b in bodies)
     dt_cfl = sim.cfl * scene.grid.cell_size / wave
     # The step stays 4.5-30x below the predicted stability limit (engine.spectrum, `validate --limits`): the bond

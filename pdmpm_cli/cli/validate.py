@@ -85,6 +85,11 @@ def print_plan(console: Console, plan):
         "P-wave speed [m/s]": [f"{b.effective['wave_speed']:.4g}" for b in plan.bodies],
         "bond dt bound [s]": [f"{b.dt_bond:.3g}" for b in plan.bodies],
     }
+    if any(b.fracture_threshold is not None for b in plan.bodies):
+        rows["fracture energy G_c [J/m^2]"] = ["-" if b.fracture_energy is None else f"{b.fracture_energy:.4g}"
+                                               for b in plan.bodies]
+        rows["fracture threshold [-]"] = ["-" if b.fracture_threshold is None else f"{b.fracture_threshold:.4g}"
+                                          for b in plan.bodies]
     for label, values in rows.items():
         bodies.add_row(escape(label), *values)
     console.print(bodies)

@@ -26,6 +26,15 @@ CONTACT_DAMAGE = 0.5  # crack particles with at least this damage (mostly detach
 SPLIT_COS = math.cos(math.pi / 4.0)  # candidates whose bonds open in directions > 45 degrees apart: two cracks
 
 
+def critical_stretch(energy: float, modulus: float, horizon: float) -> float:
+    """Threshold s0 [-] whose bonds, all at s0, hold `energy` G_c [J/m^2] per unit area crossing them.
+
+    Madenci & Oterkus' integral over the bonds crossing a plane, G_c = pi int_0^delta xi^3 phi_c(xi) dxi, with this
+    engine's pair energy at stretch s0, phi_c = c M w s0^2 (c = 5 / omega = 15 / (pi delta^3), w = 1 - xi / delta):
+    G_c = 3/4 M delta s0^2 (docs/method.md, 'Fracture energy')."""
+    return math.sqrt(4.0 * energy / (3.0 * modulus * horizon))
+
+
 @njit(cache=True, inline="always")
 def cell_key(particle_x, p, origin, inv_dx, cells):
     """Linear index of particle p's grid cell (particles outside the grid count in the nearest boundary cell)."""

@@ -14,6 +14,7 @@ import numpy as np
 class FractureParams:
     threshold: float  # critical bond strain of eq. 21 [-]
     damage_resistance: float  # weight k of p_inactive in eq. 21 [-]
+    energy: float | None = None  # fracture energy G_c the threshold was derived from [J/m^2]; None: given directly
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,8 @@ class BodyPlan:
     horizon: float  # delta [m]
     effective: dict  # effective isotropic constants of the calibration [Pa, -, m/s]
     dt_bond: float  # bond bound, before the safety factor [s]
+    fracture_threshold: float | None = None  # eq. 21 threshold the body breaks at (given or from its energy) [-]
+    fracture_energy: float | None = None  # fracture energy G_c it came from [J/m^2]
 
 
 @dataclass(frozen=True)

@@ -209,16 +209,31 @@ Material = Annotated[Union[tuple(kind.schema for kind in MATERIALS.values())], F
 
 
 class Fracture(Strict):
-    """Fracture by fracture planes (paper section 6, eq. 21)."""
+    """Fracture by fracture planes (paper section 6, eq. 21). Give exactly one of `threshold` (the paper's critical
+    strain, fixed: the energy a crack absorbs then changes with the horizon) and `energy` (a fracture energy, from
+    which each body's threshold follows with its stiffness and horizon, so a crack costs the same at every
+    resolution)."""
 
-    threshold: float = Field(
-        gt=0, description="Critical bond strain: a bond fails when (stretch - e_p) / (1 + p_inactive) exceeds it "
-        "(eq. 21; Table 1: 0.05 for the broken board) [-].")
+    threshold: float | None = Field(
+        None, gt=0, description="Critical bond strain: a bond fails when (stretch - e_p) / (1 + p_inactive) exceeds "
+        "it (eq. 21; Table 1: 0.05 for the broken board) [-].")
+    energy: float | None = Field(
+        None, gt=0, description="Critical energy release rate G_c, the energy a crack absorbs per unit area "
+        "[J/m^2]. The threshold becomes s0 = sqrt(4 G_c / (3 M delta)) with M the P-wave modulus lam + 2 mu and "
+        "delta the horizon: the energy of every bond crossing a unit area at s0 (docs/method.md, 'Fracture "
+        "energy'); `pdmpm validate --explain` prints it.")
     damage_resistance: float = Field(
         1.0, ge=0, description="Weight k of p_inactive in eq. 21, l = (stretch - e_p) / (1 + k p_inactive): 1 is the "
         "paper (a cell that already holds broken bonds resists further breaking, so a slowly pulled bar breaks "
         "cleanly); 0 lets a started crack cut through (a wall hit hard breaks into pieces instead of stalling in "
         "bands of partial damage) [-].")
+
+    @model_validator(mode="after")
+    def _one_criterion(self):
+        if (self.threshold is None) == (self.energy is None):
+            raise ValueError("give exactly one of threshold (a critical strain [-], the paper's) and energy (a "
+                             "fracture energy G_c [J/m^2], the same crack at every resolution)")
+        return self
 
 
 # ---------------------------------------------------------------- bodies
