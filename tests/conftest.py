@@ -1,5 +1,8 @@
 """Shared helpers: build scenes in code and run them without touching the disk."""
 
+import os
+
+import numba
 import pytest
 
 from pdmpm_cli.scene.loader import merge
@@ -16,6 +19,13 @@ BASE = {
         "material": {"model": "elastic", "density": 1000.0, "lam": 1e5, "mu": 1e5},
     }],
 }
+
+
+def pytest_configure(config):
+    """Under pytest-xdist (the default run: `-n 2`) the workers share the cores: each runs Numba's parallel loops on
+    its share of the threads, so two workers on two cores do not oversubscribe them."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    numba.set_num_threads(max(1, numba.config.NUMBA_NUM_THREADS // workers))
 
 
 @pytest.fixture

@@ -89,7 +89,7 @@ def test_inactive_fraction_is_independent_of_thread_count():
     x = rest_x + np.random.default_rng(3).normal(0.0, 0.3 * H, rest_x.shape)
     active = (np.random.default_rng(4).random(len(bond_nbr)) > 0.3).astype(np.uint8)
     active &= active[reverse(bond_start, bond_nbr)]
-    runs = []
+    runs, threads_now = [], numba.get_num_threads()
     try:
         for threads in (1, numba.config.NUMBA_NUM_THREADS):
             numba.set_num_threads(threads)
@@ -97,7 +97,7 @@ def test_inactive_fraction_is_independent_of_thread_count():
             inactive_fraction(x, ORIGIN, 1.0 / DX, CELLS, bond_start, active, out)
             runs.append(out)
     finally:
-        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        numba.set_num_threads(threads_now)
     assert np.array_equal(runs[0], runs[1])
     # direct count: cells as numpy keys
     cell = np.clip(np.floor((x - ORIGIN) / DX).astype(np.int64), 0, CELLS - 1)

