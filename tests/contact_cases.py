@@ -100,12 +100,12 @@ def sphere_collision(spacings: float, closing: float = 0.05, mode: str = "separa
 
 def sliding_block(friction: float, v0: float = 1.0, duration: float = 0.2, cell: float = 0.02) -> dict:
     """A block (4 x 2 x 4 cells) sliding at v0 along x on a slab (20 x 3 x 8 cells) that rests on the sticky floor
-    (the domain wall), under gravity, with Coulomb friction `friction` between them. The block starts on the slab
+    (a plane collider), under gravity, with Coulomb friction `friction` between them. The block starts on the slab
     (surfaces touching), so its weight presses on it from the first step."""
     h = cell / 2
     slab = (20 * cell, 3 * cell, 8 * cell)
     block = (4 * cell, 2 * cell, 4 * cell)
-    floor = 4 * cell  # the walls' nodes reach 3 cells into the domain: the slab lies on them
+    floor = 4 * cell  # a sticky plane collider: particles must stay 3.5 cells inside the domain
     width = (slab[0] + 8 * cell, floor + slab[1] + block[1] + 8 * cell, slab[2] + 8 * cell)
 
     def box(center, size):
@@ -115,18 +115,19 @@ def sliding_block(friction: float, v0: float = 1.0, duration: float = 0.2, cell:
     cx, cz = width[0] / 2, width[2] / 2
     return {
         "simulation": {"duration": duration, "fps": 100},
-        "grid": {"cell_size": cell, "domain": {"min": [0, 0, 0], "max": list(width)}, "boundary": "sticky"},
+        "grid": {"cell_size": cell, "domain": {"min": [0, 0, 0], "max": list(width)}},
         "gravity": [0, -G, 0],
+        "colliders": [{"type": "plane", "point": [0, floor, 0], "normal": [0, 1, 0], "boundary": "sticky"}],
         "contact": {"friction": friction},
         "bodies": [
-            {"name": "slab", "geometry": box((cx, floor + slab[1] / 2, cz), slab), "material": elastic(1e6)},
+            {"name": "slab", "geometry": box((cx, floor + slab[1] / 2, cz), slab), "material": elastic()},
             {"name": "block", "geometry": box((cx - slab[0] / 4, floor + slab[1] + block[1] / 2, cz), block),
-             "material": elastic(1e6), "velocity": [v0, 0, 0]},
+             "material": elastic(), "velocity": [v0, 0, 0]},
         ],
     }
 
 
-def sliding(friction: float, v0: float = 1.0, duration: float = 0.2, settle: float = 0.05, cell: float = 0.02) -> dict:
+def sliding(friction: float, v0: float = 1.0, duration: float = 0.15, settle: float = 0.05, cell: float = 0.02) -> dict:
     """Run the sliding block; its x velocity over time and the least-squares deceleration after `settle` s (while
     it still moves) [m/s^2]."""
     sim = Sim(sliding_block(friction, v0, duration, cell))

@@ -123,10 +123,16 @@ def contact_node_at(i, j, k, grid_field, grid_surface, friction, dx):
         m = grid_field[f, i, j, k, 0]
         if m <= 0.0:
             continue
-        # normal: own outward mass gradient minus the others' (they point into this body)
-        n0 = 2.0 * grid_surface[f, i, j, k, 0] - g0
-        n1 = 2.0 * grid_surface[f, i, j, k, 1] - g1
-        n2 = 2.0 * grid_surface[f, i, j, k, 2] - g2
+        # normal: the outward mass gradient of whichever side has the larger one, this field's or the others'
+        # (pointing into this body); at a body's edge or corner its own gradient tilts, a flat face's does not.
+        # A tie goes to field 0's, so two fields always get opposite normals.
+        a0, a1, a2 = grid_surface[f, i, j, k, 0], grid_surface[f, i, j, k, 1], grid_surface[f, i, j, k, 2]
+        o0, o1, o2 = g0 - a0, g1 - a1, g2 - a2
+        aa, oo = a0 * a0 + a1 * a1 + a2 * a2, o0 * o0 + o1 * o1 + o2 * o2
+        if aa > oo or (aa == oo and f == 0):
+            n0, n1, n2 = a0, a1, a2
+        else:
+            n0, n1, n2 = -o0, -o1, -o2
         nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
         if nn <= 0.0:
             continue
