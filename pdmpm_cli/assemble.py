@@ -93,6 +93,20 @@ def body_params(scene: Scene, disc: Discretization) -> tuple[BodyParams, ...]:
     return tuple(out)
 
 
+def contact_friction(scene: Scene) -> np.ndarray:
+    """(bodies, bodies) Coulomb coefficients between bodies, or (0, 0) when all bodies share one grid field (one
+    body, or contact mode shared)."""
+    n = len(scene.bodies)
+    if n < 2 or scene.contact.mode == "shared":
+        return np.zeros((0, 0))
+    out = np.full((n, n), scene.contact.friction)
+    index = {b.name: i for i, b in enumerate(scene.bodies)}
+    for pair in scene.contact.pairs:
+        a, b = (index[name] for name in pair.bodies)
+        out[a, b] = out[b, a] = pair.friction
+    return out
+
+
 def build_model(scene: Scene, disc: Discretization) -> Model:
     n = disc.n_particles
     omega = np.zeros(n)
@@ -113,4 +127,5 @@ def build_model(scene: Scene, disc: Discretization) -> Model:
         wind_drag=scene.wind.drag if scene.wind else 0.0,
         origin=lo, dx=g.cell_size, grid_shape=tuple(int(c) + 1 for c in cells),
         wall_boundary=BOUNDARY_CODES[g.boundary], wall_friction=g.friction,
+        contact_friction=contact_friction(scene),
     )

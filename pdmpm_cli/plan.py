@@ -13,6 +13,7 @@ import numpy as np
 from pdmpm_cli.discretize import Discretization
 from pdmpm_cli.engine import fields as F
 from pdmpm_cli.engine.bonds import bond_time_steps
+from pdmpm_cli.engine.contact import SURFACE
 from pdmpm_cli.engine.materials import MATERIALS
 from pdmpm_cli.engine.model import Model
 from pdmpm_cli.engine.plan import BodyPlan, Plan
@@ -31,6 +32,8 @@ def state_fields(model: Model, backend: str) -> tuple[F.Field, ...]:
     """The declarations of every State array the scene needs: the core ones, then those of what it uses."""
     kinds = [MATERIALS[b.kind] for b in model.bodies]
     out = list(F.CORE + F.GRIDS)
+    if len(model.contact_friction):  # a field per body replaces the one grid
+        out = [f for f in out if f.name != "grid"] + list(F.CONTACT)
     if any(k.uses_fbar(b.params) for k, b in zip(kinds, model.bodies)):
         out += F.FBAR
     for kind in dict.fromkeys(kinds):
@@ -46,6 +49,9 @@ def array_shapes(declared, model: Model, n_bonds: int, threads: int) -> dict:
     grid = {
         "grid": nodes + (4,),
         "grid_private": (threads,) + nodes + (4,),  # per-thread P2G grids keep the CPU race-free (GPU: atomics)
+        "grid_field": (len(model.bodies),) + nodes + (4,),
+        "grid_surface": (len(model.bodies),) + nodes + (SURFACE,),
+        "grid_surface_private": (threads,) + nodes + (SURFACE,),
         "particle_force_private": (threads, n, 3),  # per-thread pair-force arrays (CPU)
         "cell_bonds": (math.prod(c - 1 for c in nodes),), "cell_broken": (math.prod(c - 1 for c in nodes),),
     }
@@ -90,7 +96,9 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
     for hook in ("before_forces", "forces", "after_forces"):  # each named by its function: return_map:plastic
         phases += [f"{getattr(k, hook).__name__}:{k.name}" for k in used if getattr(k, hook) is not None]
     # Crack particles meet the grid's material after its update and before intact particles read it back.
-    phases += ["p2g", "grid_update", *(["crack"] if fracture else []), "g2p", *(["fracture"] if fracture else [])]
+    contact = len(model.contact_friction) > 0
+    phases += ["p2g", "grid_update", *(["contact"] if contact else []), *(["crack"] if fracture else []), "g2p",
+               *(["fracture"] if fracture else [])]
     threads = numba.get_num_threads() if sim.backend == "cpu" else 0
     n, nb = disc.n_particles, disc.n_bonds
     fields = array_shapes(state_fields(model, sim.backend), model, nb, threads)
@@ -104,4 +112,5 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
         frames=max(1, int(round(sim.duration * sim.fps))), frame_dt=frame_dt, dt_user=sim.dt,
         dt_cfl=dt_cfl, dt_bond=dt_bond, dt_max=dt_max, binding=binding, dt_reduced=reduced, wave_speed=wave,
         memory_bytes=memory, notes=tuple(disc.notes), backend=sim.backend, fbar=need_fbar, fracture=fracture,
+        contact=contact,
     )

@@ -3,8 +3,8 @@ set before numba is imported; test_cuda.py runs this in a subprocess for that).
 
     NUMBA_ENABLE_CUDASIM=1 python -m tests.cuda_compare [--steps N] [name ...]
 
-The cases are every bundled scene (scenes/*.yaml) at a tiny resolution, and three small synthetic scenes that push
-walls, colliders, pins, wind and plasticity. Both solvers take the same time steps (the CPU's), so any difference is
+The cases are every bundled scene (scenes/*.yaml) at a tiny resolution, and small synthetic scenes that push
+walls, colliders, pins, wind, plasticity and contact between bodies. Both solvers take the same time steps (the CPU's), so any difference is
 round-off: the GPU's P2G adds with atomics in another order (and a real GPU fuses multiply-adds). Prints one JSON
 line per case: the largest differences of positions, velocities and APIC matrices relative to the body size and the
 largest speed, of every other State array relative to its largest value, and what the case exercised.
@@ -66,6 +66,14 @@ SYNTHETIC = {
                                           "relaxation_time": 0.002, "relaxing_fraction": 0.8, "break_stretch": 0.005,
                                           "rebuild_distance": 0.05, "bulk_modulus": 3e5},  # rebuilds in 6 steps
                              "velocity": [0.0, -20.0, 0.0]}]),
+    # two blocks meeting edge-on, one per grid field: contact with friction 0.4 where they meet, free elsewhere
+    "two_bodies": {**scene([{"name": "left",
+                             "geometry": {**BLOCK, "shape": {**BLOCK["shape"], "center": [0.37, 0.5, 0.5]}},
+                             "material": ELASTIC, "velocity": [3.0, 0.5, 0.0]},
+                            {"name": "right",
+                             "geometry": {**BLOCK, "shape": {**BLOCK["shape"], "center": [0.6, 0.55, 0.5]}},
+                             "material": ELASTIC, "velocity": [-3.0, 0.0, 0.0]}]),
+                   "contact": {"friction": 0.1, "pairs": [{"bodies": ["left", "right"], "friction": 0.4}]}},
     # a block thrown at a moving mesh collider (a closed icosphere file, its signed distance sampled on a lattice)
     "mesh_collider": scene([{"name": "block", "geometry": BLOCK, "material": ELASTIC, "velocity": [0.0, 6.0, 0.0]}],
                            colliders=[{"type": "mesh", "path": "ball.off", "translate": [0.52, 0.5, 0.5],
@@ -85,7 +93,8 @@ BUNDLED = {
     "bunnies_plastic": ("grid.cell_size=0.03", "bodies.0.geometry.spacing=0.03", "bodies.1.geometry.spacing=0.03"),
     # thrown at 4x its speed so that bonds break within the few steps compared
     "wall_break": ("grid.cell_size=0.04", "bodies.0.geometry.spacing=0.04", "bodies.1.geometry.spacing=0.04",
-                   "bodies.1.velocity=[24.0,0.0,0.0]", "bodies.0.fracture.threshold=0.0005"),
+                   "bodies.1.velocity=[24.0,0.0,0.0]", "bodies.0.fracture.threshold=0.0005",
+                   "bodies.1.geometry.shape.center=[0.37,0.4,0.45]"),  # touching the wall: contact from the start
     "beams": ("grid.cell_size=0.075", *(f"bodies.{i}.geometry.spacing=0.075" for i in range(3)),
               *(f"bodies.{i}.geometry.layers=1" for i in range(3))),
     "honey": ("grid.cell_size=0.1", "bodies.0.geometry.spacing=0.08"),
@@ -165,6 +174,11 @@ def compare(name: str, steps: int) -> dict:
     if a.has("bond_len0"):
         out["rebuilt"] = bool(np.any(a.particle_x_rebuild != model.rest_x))
         out["broken"] = int((a.bond_len0 < 0).sum())
+    if preps[0].plan.contact:  # x momentum the first body gave the others (gravity acts along y only)
+        b0 = model.bodies[0]
+        m0 = mass[b0.start:b0.end]
+        mv = m0 @ (states[0].particle_v[b0.start:b0.end] - preps[0].disc.velocity[b0.start:b0.end])
+        out["exchanged"] = float(abs(mv[0]) / (m0.sum() * speed))
     pins = model.pin_mask.astype(bool)
     if pins.any():
         out["pinned"] = int(pins.sum())

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from pdmpm_cli.engine.fracture import pieces
 from pdmpm_cli.engine.state import State
@@ -118,13 +119,20 @@ def board_dent(trace: Trace) -> dict[str, float]:
 
 def bunny_shapes(trace: Trace) -> dict[str, float]:
     """Bunnies: distance from the rest shape (rigid fit removed), mean of the two bunnies, at its peak and at the
-    end (relative to the bunny height)."""
-    x0 = trace.model.rest_x
+    end (relative to the bunny height); the gap between them at the end (closest particles of the two, less one
+    spacing: surface to surface); and their restitution: the fastest the centres of mass move apart after their
+    closest approach, over how fast they closed in the first frame (before they bounce off the domain walls)."""
+    x0, x, m = trace.model.rest_x, trace.x[-1], trace.model.particle_mass
     height = np.ptp(x0[trace.body(0), 1])
     dev = np.array([np.mean([rigid_residual(x[trace.body(i)], x0[trace.body(i)]) for i in (0, 1)])
                     for x in trace.x]) / height
+    gap = cKDTree(x[trace.body(0)]).query(x[trace.body(1)])[0].min() - trace.model.bodies[0].spacing
+    d = np.array([np.subtract(*[m[trace.body(i)] @ x[trace.body(i), 0] / m[trace.body(i)].sum() for i in (1, 0)])
+                  for x in trace.x])
+    step = np.diff(d)
     return {"peak_deformation": float(dev.max()), "final_deformation": float(dev[-1]),
-            "recovery_ratio": float(dev[-1] / dev.max())}
+            "recovery_ratio": float(dev[-1] / dev.max()), "gap_mm": 1e3 * float(gap),
+            "restitution": float(max(step[np.argmin(d):].max(), 0.0) / -step[0])}
 
 
 def wall_pieces(trace: Trace) -> dict[str, float]:
@@ -175,11 +183,13 @@ CASES: dict[str, Case] = {
                           {"peak_mm": 0.1, "residual_mm": 0.15, "residual_ratio": 0.15},
                           "bodies.0.material.yield_stress=5.3e4"),
     "bunnies_elastic": Case("bunnies_elastic.yaml", BUNNIES, bunny_shapes,
-                            {"peak_deformation": 0.1, "final_deformation": 0.5, "recovery_ratio": 0.5},
+                            {"peak_deformation": 0.1, "final_deformation": 0.5, "recovery_ratio": 0.5, "gap_mm": 0.3,
+                             "restitution": 0.1},
                             "bodies.0.material.mu=5e4", absolute={"final_deformation": 0.003, "recovery_ratio": 0.05}),
     "bunnies_plastic": Case("bunnies_plastic.yaml", BUNNIES, bunny_shapes,
-                            {"peak_deformation": 0.1, "final_deformation": 0.15, "recovery_ratio": 0.15},
-                            "bodies.0.material.yield_stress=3.2e4"),
+                            {"peak_deformation": 0.1, "final_deformation": 0.15, "recovery_ratio": 0.15, "gap_mm": 0.5,
+                             "restitution": 0.2},
+                            "bodies.0.material.yield_stress=3.2e4", absolute={"gap_mm": 2.0, "restitution": 0.02}),
     "wall_break": Case("wall_break.yaml", ("simulation.duration=0.4",), wall_pieces,
                        {"large_pieces": 0.0, "large_share": 0.1, "dust_share": 0.3}, "bodies.0.fracture.threshold=0.1",
                        absolute={"large_pieces": 1.0, "dust_share": 0.02}),

@@ -99,6 +99,12 @@ def test_mesh_collider_alike(compared):
     assert_same(row)
 
 
+def test_two_bodies_in_contact_alike(compared):
+    row = compared["two_bodies"]
+    assert "contact" in row["phases"] and row["exchanged"] > 0.01  # the bodies pushed each other
+    assert_same(row)
+
+
 def test_viscoelastic_splat_rebuilds_alike(compared):
     row = compared["viscous_splat"]
     assert "families:viscoelastic" in row["phases"] and row["rebuilt"]
@@ -129,7 +135,7 @@ def test_kernels_compile_for_an_h100():
                         "incremental_dilatation_at", "viscoelastic_force_at", "volume_pressure_at", "copy_row_at",
                         "zero_box", "p2g_kernel", "grid_update_kernel", "reset_stats", "g2p_kernel",
                         "crack_contact_kernel", "crack_update_kernel", "criterion_at", "zero_cells", "count_cells",
-                        "cell_fraction"}
+                        "cell_fraction", "surface_kernel", "contact_kernel"}
 
 
 TINY = textwrap.dedent("""\

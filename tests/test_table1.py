@@ -42,9 +42,13 @@ def test_elastic_board_springs_back_and_plastic_board_keeps_a_dent():
 
 
 def test_elastic_bunnies_recover_and_plastic_bunnies_stay_deformed():
+    """Both pairs come apart after the collision (a field per body: they do not weld), with a gap between them;
+    the elastic bunnies recover their shape, the plastic ones stay dented."""
     elastic, plastic = metrics("bunnies_elastic"), metrics("bunnies_plastic")
     assert elastic["recovery_ratio"] < 0.35
     assert plastic["recovery_ratio"] > 0.6
+    for pair in (elastic, plastic):
+        assert pair["gap_mm"] > 30 and pair["restitution"] > 0.05
 
 
 def test_wall_breaks_into_a_few_large_pieces():

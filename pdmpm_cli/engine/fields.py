@@ -42,6 +42,13 @@ GRIDS = (
     Field("grid", GRID, transient=True, doc="node mass, then momentum / velocity"),
     Field("grid_private", GRID, transient=True, doc="per-thread P2G scatter targets (CPU)"),
 )
+# Contact between bodies (engine/contact.py): one grid velocity field per body, in place of `grid`.
+CONTACT = (
+    Field("grid_field", GRID, transient=True, doc="per body: node mass, then momentum / velocity"),
+    Field("grid_surface", GRID, transient=True,
+          doc="per body: mass gradient [kg/m] and mass-weighted offset of its particles from the node [kg m]"),
+    Field("grid_surface_private", GRID, transient=True, doc="per-thread scatter targets of grid_surface (CPU)"),
+)
 # Reference bond factors, computed once: the Fbar pass and the pair pass read them.
 BOND_FACTORS = (
     Field("bond_wv", BOND, doc="w(|xi|) V_q, eq. 4's weight times the neighbour's volume [m^3]"),

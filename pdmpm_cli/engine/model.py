@@ -57,6 +57,8 @@ class Model:
     grid_shape: tuple[int, int, int]  # nodes per axis
     wall_boundary: int  # colliders.STICKY, SLIP or SEPARATE
     wall_friction: float
+    contact_friction: np.ndarray  # (bodies, bodies) Coulomb coefficients of contact between bodies [-]; (0, 0):
+    # the bodies share one grid field (one body, or contact mode shared)
 
     @property
     def n_particles(self) -> int:

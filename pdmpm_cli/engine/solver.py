@@ -1,8 +1,9 @@
 """Explicit MPM step with peridynamic bond forces (paper section 3) and the frame loop around it.
 
 The step reads top to bottom as the paper's loop: bond forces (eq. 4, then each body's material), P2G, the grid
-update, the crack particles' own integrator and G2P, then fracture. A part a scene does not need is skipped by a
-switch the Plan set once (`plan.fbar`, `plan.fracture`); materials are called through their registry entries,
+update, contact between bodies (ours: engine/contact.py), the crack particles' own integrator and G2P, then
+fracture. A part a scene does not need is skipped by a switch the Plan set once (`plan.fbar`, `plan.fracture`,
+`plan.contact`); materials are called through their registry entries,
 never by type. The backend (engine/backends) runs each part on the CPU or the GPU."""
 
 import time
@@ -105,6 +106,9 @@ class Solver:
                 self.fail_outside(state)
         with self.timed("grid_update"):
             self.backend.grid_update(self, state, dt)
+        if self.plan.contact:
+            with self.timed("contact"):
+                self.backend.contact(self, state)
         crack_vmax = 0.0
         if self.plan.fracture:
             with self.timed("crack"):

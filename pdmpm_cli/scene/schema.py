@@ -432,6 +432,27 @@ FieldName = Literal[("particle_v", "particle_speed", "particle_C", "particle_for
                      *(name for kind in MATERIALS.values() for name in kind.outputs))]
 
 
+class ContactPair(Strict):
+    bodies: tuple[str, str] = Field(description="Names of the two bodies (from bodies[].name) this entry is for.")
+    friction: float = Field(ge=0, description="Coulomb friction coefficient between these two bodies [-]: while "
+                            "they press together, the tangential impulse is at most this times the normal one.")
+
+
+class Contact(Strict):
+    """How bodies meet. `separate` (default): each body moves on its own grid velocity field; where bodies meet,
+    they cannot pass into each other, slide with Coulomb friction and come apart freely. `shared`: all bodies
+    share one grid field, so touching bodies stick and move together where they overlap on the grid (the paper's
+    single-grid MPM). A one-body scene has no contact either way."""
+
+    mode: Literal["separate", "shared"] = Field(
+        "separate", description="separate: a grid field per body, with contact between them; shared: one grid "
+        "field for all bodies (they weld where they touch).")
+    friction: float = Field(0.0, ge=0, description="Coulomb friction coefficient between any two bodies that no "
+                            "`pairs` entry names [-] (0: frictionless).")
+    pairs: list[ContactPair] = Field(default_factory=list,
+                                     description="Friction of particular body pairs, overriding `friction`.")
+
+
 class Output(Strict):
     hdf5: bool = Field(True, description="Write one HDF5 file (run.h5) with every frame.")
     vtk: bool = Field(True, description="Write a VTU file per frame and a .pvd index for ParaView.")
@@ -506,6 +527,8 @@ class Scene(Strict):
     bodies: list[Body] = Field(min_length=1, description="Deformable bodies.")
     colliders: list[Collider] = Field(default_factory=list, description="Kinematic level-set colliders.")
     wind: Wind | None = Field(None, description="Uniform wind acting on all material on the grid; absent: none.")
+    contact: Contact = Field(default_factory=Contact, description="Contact between bodies: separate grid fields "
+                             "(default) or one shared field, and the friction between them.")
     output: Output = Field(default_factory=Output)
     render: RenderSettings = Field(
         default_factory=RenderSettings, description="Defaults for `pdmpm render` (camera, colour field, image size).")
@@ -533,6 +556,32 @@ class Scene(Strict):
         if errors:
             raise ValidationError.from_exception_data(cls.__name__, errors)
         return bodies
+
+    @field_validator("contact")
+    @classmethod
+    def _contact_bodies(cls, contact: Contact, info: ValidationInfo) -> Contact:
+        """Each friction pair names two different bodies of the scene, and no pair twice."""
+        bodies = info.data.get("bodies")
+        if bodies is None:
+            return contact
+        names, errors, seen = [b.name for b in bodies], [], set()
+        for i, pair in enumerate(contact.pairs):
+            a, b = pair.bodies
+            unknown = [n for n in (a, b) if n not in names]
+            if unknown:
+                message = f"no body is named {', '.join(map(repr, unknown))}; the bodies are {', '.join(names)}"
+            elif a == b:
+                message = f"a pair needs two different bodies (got {a!r} twice); a body has no contact with itself"
+            elif frozenset((a, b)) in seen:
+                message = f"the pair {a!r}, {b!r} is listed twice; keep one entry"
+            else:
+                seen.add(frozenset((a, b)))
+                continue
+            errors.append(InitErrorDetails(type=PydanticCustomError("contact_pair", message),
+                                           loc=("pairs", i, "bodies"), input=list(pair.bodies)))
+        if errors:
+            raise ValidationError.from_exception_data(cls.__name__, errors)
+        return contact
 
     @model_validator(mode="after")
     def _unique_names(self):

@@ -4,6 +4,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
+from pdmpm_cli.engine.contact import contact_update, surfaces
 from pdmpm_cli.engine.fracture import crack_contact, crack_particle_update, inactive_fraction
 from pdmpm_cli.engine.parallel import particle_chunks
 from pdmpm_cli.engine.transfer import g2p, grid_update, p2g, position_bounds
@@ -36,28 +37,54 @@ class CpuBackend:
         lo, hi = position_bounds(state.particle_x)
         return solver.box_of(lo, hi)
 
+    @staticmethod
+    def fields(solver, state):
+        """(grid, start, end) per grid field: the one grid and every particle, or each body's field and its
+        particles (plan.contact)."""
+        if not solver.plan.contact:
+            return ((state.grid, 0, solver.model.n_particles),)
+        return tuple((state.grid_field[f], b.start, b.end) for f, b in enumerate(solver.model.bodies))
+
     def p2g(self, solver, state, dt) -> int:
         m = solver.model
         solver.box = self.node_box(solver, state)
-        return p2g(state.particle_x, state.particle_v, state.particle_C, m.particle_mass, state.particle_force,
-                   state.particle_crack, m.pin_mask, dt, m.origin, 1.0 / m.dx, solver.box, state.grid_private,
-                   state.grid)
+        outside = 0
+        for f, (grid, s, e) in enumerate(self.fields(solver, state)):
+            outside += p2g(state.particle_x[s:e], state.particle_v[s:e], state.particle_C[s:e], m.particle_mass[s:e],
+                           state.particle_force[s:e], state.particle_crack[s:e], m.pin_mask[s:e], dt, m.origin,
+                           1.0 / m.dx, solver.box, state.grid_private, grid)
+            if solver.plan.contact:
+                surfaces(state.particle_x[s:e], m.particle_mass[s:e], state.particle_crack[s:e], m.origin, 1.0 / m.dx,
+                         solver.box, state.grid_surface_private, state.grid_surface[f])
+        return outside
 
     def grid_update(self, solver, state, dt):
         m = solver.model
-        grid_update(state.grid, dt, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, solver.box,
-                    state.time + dt, m.colliders, m.wall_boundary, m.wall_friction)
+        for grid, _, _ in self.fields(solver, state):
+            grid_update(grid, dt, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, solver.box,
+                        state.time + dt, m.colliders, m.wall_boundary, m.wall_friction)
+
+    def contact(self, solver, state):
+        m = solver.model
+        contact_update(state.grid_field, state.grid_surface, m.contact_friction, m.dx, solver.box)
 
     def g2p(self, solver, state, dt) -> tuple[float, int]:
         m = solver.model
-        return g2p(state.grid, dt, m.origin, 1.0 / m.dx, state.time + dt, m.colliders, m.pin_mask, m.pin_velocity,
-                   m.pin_stop, state.particle_crack, state.particle_x, state.particle_v, state.particle_C,
-                   particle_chunks())
+        vmax, bad = 0.0, 0
+        for grid, s, e in self.fields(solver, state):
+            v, b = g2p(grid, dt, m.origin, 1.0 / m.dx, state.time + dt, m.colliders, m.pin_mask[s:e],
+                       m.pin_velocity[s:e], m.pin_stop[s:e], state.particle_crack[s:e], state.particle_x[s:e],
+                       state.particle_v[s:e], state.particle_C[s:e], particle_chunks())
+            vmax, bad = max(vmax, v), bad + b
+        return vmax, bad
 
     def crack(self, solver, state, dt) -> tuple[float, int]:
+        """Crack particles meet their own body's material (crack_index is sorted, bodies are particle ranges)."""
         m, idx = solver.model, solver.crack_index
-        crack_contact(state.grid, dt, m.gravity, m.origin, 1.0 / m.dx, idx, state.particle_damage, m.particle_mass,
-                      m.particle_volume, state.particle_force, state.particle_x, state.particle_v)
+        for grid, s, e in self.fields(solver, state):
+            lo, hi = np.searchsorted(idx, (s, e))
+            crack_contact(grid, dt, m.gravity, m.origin, 1.0 / m.dx, idx[lo:hi], state.particle_damage,
+                          m.particle_mass, m.particle_volume, state.particle_force, state.particle_x, state.particle_v)
         return crack_particle_update(dt, state.time + dt, m.colliders, solver.valid_lo, solver.valid_hi, idx,
                                      state.particle_x, state.particle_v, state.particle_C)
 

@@ -28,7 +28,7 @@ import numba  # noqa: E402
 from numba import cuda, float64  # noqa: E402
 from numba.core.registry import CPUDispatcher  # noqa: E402
 
-from pdmpm_cli.engine import fracture, transfer  # noqa: E402
+from pdmpm_cli.engine import contact, fracture, transfer  # noqa: E402
 from pdmpm_cli.engine.fields import GRID  # noqa: E402
 from pdmpm_cli.engine.kernel import Kernel  # noqa: E402
 
@@ -68,8 +68,19 @@ def scatter_node_atomic(g, i, j, k, m, p0, p1, p2):
     cuda.atomic.add(g, (i, j, k, 3), p2)
 
 
+@cuda.jit(device=True)
+def scatter_surface_atomic(g, i, j, k, g0, g1, g2, s0, s1, s2):
+    """contact.scatter_surface with atomic adds."""
+    cuda.atomic.add(g, (i, j, k, 0), g0)
+    cuda.atomic.add(g, (i, j, k, 1), g1)
+    cuda.atomic.add(g, (i, j, k, 2), g2)
+    cuda.atomic.add(g, (i, j, k, 3), s0)
+    cuda.atomic.add(g, (i, j, k, 4), s1)
+    cuda.atomic.add(g, (i, j, k, 5), s2)
+
+
 SUBSTITUTES = {"max": larger, "min": smaller, "np": math}
-REPLACED = {transfer.scatter_node: scatter_node_atomic}
+REPLACED = {transfer.scatter_node: scatter_node_atomic, contact.scatter_surface: scatter_surface_atomic}
 
 
 @functools.cache
@@ -113,6 +124,12 @@ def particle_kernel(kernel: Kernel):
                       {"cuda": cuda, "float64": float64, "fn": device(kernel.fn)})
 
 
+def rows(array, s: int, e: int):
+    """array[s:e] on the device; the whole array when that is all of it, or when it is an empty stand-in (no view
+    to make, per step and array, on the one-field path)."""
+    return array if array.shape[0] == 0 or (s == 0 and e == array.shape[0]) else array[s:e]
+
+
 def launch(kern, n: int, *args):
     """Run `kern` on n threads (none when n = 0)."""
     if n > 0:
@@ -128,6 +145,8 @@ d_crack_contact_at = device(fracture.crack_contact_at)
 d_crack_update_at = device(fracture.crack_update_at)
 d_cell_key = device(fracture.cell_key)
 d_broken_bonds = device(fracture.broken_bonds)
+d_surface_at = device(contact.surface_at)
+d_contact_node_at = device(contact.contact_node_at)
 
 
 @cuda.jit(device=True)
@@ -145,7 +164,7 @@ def zero_box(box, grid):
     """grid = 0 on the node box: the only nodes P2G can touch this step."""
     i, j, k = box_node(cuda.grid(1), box)
     if i >= 0:
-        for q in range(4):
+        for q in range(grid.shape[3]):
             grid[i, j, k, q] = 0.0
 
 
@@ -169,6 +188,27 @@ def grid_update_kernel(grid, dt, gravity, wind, drag, origin, dx, box, t_new, co
         nrm = cuda.local.array(3, float64)
         d_grid_node_update(i, j, k, grid, dt, gravity, wind, drag, origin, dx, t_new, colliders, wall_boundary,
                            wall_friction, v, nrm)
+
+
+@cuda.jit
+def surface_kernel(particle_x, particle_mass, particle_crack, origin, inv_dx, grid_surface):
+    p = cuda.grid(1)
+    if p < particle_x.shape[0]:
+        wx = cuda.local.array(4, float64)
+        wy = cuda.local.array(4, float64)
+        wz = cuda.local.array(4, float64)
+        gx = cuda.local.array(4, float64)
+        gy = cuda.local.array(4, float64)
+        gz = cuda.local.array(4, float64)
+        d_surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, grid_surface, wx, wy, wz, gx, gy,
+                     gz)
+
+
+@cuda.jit
+def contact_kernel(grid_field, grid_surface, friction, dx, box):
+    i, j, k = box_node(cuda.grid(1), box)
+    if i >= 0:
+        d_contact_node_at(i, j, k, grid_field, grid_surface, friction, dx)
 
 
 @cuda.jit
@@ -350,11 +390,19 @@ class CudaBackend:
         return value if kernel.reduce == "max" else int(round(value))
 
     # ---- the transfers
+    @staticmethod
+    def fields(solver):
+        """(grid, start, end) per grid field on the device: the one grid and every particle, or each body's field
+        and its particles (plan.contact)."""
+        if not solver.plan.contact:
+            return ((solver.a.grid, 0, solver.model.n_particles),)
+        return tuple((solver.a.grid_field[f], b.start, b.end) for f, b in enumerate(solver.model.bodies))
+
     def p2g(self, solver, state, dt) -> int:
         """Node box and domain test from the bounds of the last G2P (transfer.stencil_on_grid on the extreme
         particles is the test on all of them), then P2G. Returns 1 when particles are off the grid (no launch)."""
         self.dirty = True
-        m, a = solver.model, solver.a
+        m, a, d = solver.model, solver.a, solver.m
         nodes = np.asarray(m.grid_shape)
         lo, hi = self.stats[STAT_LO:STAT_LO + 3], self.stats[STAT_HI:STAT_HI + 3]
         if ((lo - m.origin) / m.dx < 1.0).any() or ((hi - m.origin) / m.dx >= nodes - 3).any():
@@ -362,16 +410,28 @@ class CudaBackend:
         solver.box = solver.box_of(lo, hi)
         self.box = cuda.to_device(solver.box)
         b = solver.box
-        launch(zero_box, int((b[1] - b[0]) * (b[3] - b[2]) * (b[5] - b[4])), self.box, a.grid)
-        launch(p2g_kernel, m.n_particles, a.particle_x, a.particle_v, a.particle_C, solver.m.particle_mass,
-               a.particle_force, a.particle_crack, solver.m.pin_mask, dt, solver.m.origin, 1.0 / m.dx, a.grid)
+        nodes_in_box = int((b[1] - b[0]) * (b[3] - b[2]) * (b[5] - b[4]))
+        for f, (grid, s, e) in enumerate(self.fields(solver)):
+            x, mass, crack = rows(a.particle_x, s, e), rows(d.particle_mass, s, e), rows(a.particle_crack, s, e)
+            launch(zero_box, nodes_in_box, self.box, grid)
+            launch(p2g_kernel, e - s, x, rows(a.particle_v, s, e), rows(a.particle_C, s, e), mass,
+                   rows(a.particle_force, s, e), crack, rows(d.pin_mask, s, e), dt, d.origin, 1.0 / m.dx, grid)
+            if solver.plan.contact:
+                launch(zero_box, nodes_in_box, self.box, a.grid_surface[f])
+                launch(surface_kernel, e - s, x, mass, crack, d.origin, 1.0 / m.dx, a.grid_surface[f])
         return 0
 
     def grid_update(self, solver, state, dt):
         m, b = solver.model, solver.box
-        launch(grid_update_kernel, int((b[1] - b[0]) * (b[3] - b[2]) * (b[5] - b[4])), solver.a.grid, dt,
-               solver.m.gravity, solver.m.wind_velocity, m.wind_drag, solver.m.origin, m.dx, self.box,
-               state.time + dt, solver.m.colliders, m.wall_boundary, m.wall_friction)
+        for grid, _, _ in self.fields(solver):
+            launch(grid_update_kernel, int((b[1] - b[0]) * (b[3] - b[2]) * (b[5] - b[4])), grid, dt,
+                   solver.m.gravity, solver.m.wind_velocity, m.wind_drag, solver.m.origin, m.dx, self.box,
+                   state.time + dt, solver.m.colliders, m.wall_boundary, m.wall_friction)
+
+    def contact(self, solver, state):
+        b = solver.box
+        launch(contact_kernel, int((b[1] - b[0]) * (b[3] - b[2]) * (b[5] - b[4])), solver.a.grid_field,
+               solver.a.grid_surface, solver.m.contact_friction, solver.model.dx, self.box)
 
     def g2p(self, solver, state, dt) -> tuple[float, int]:
         """G2P, then the one read-back of the step: speed, non-finite count and bounds (crack particles included:
@@ -379,18 +439,24 @@ class CudaBackend:
         m, a, d = solver.model, solver.a, solver.m
         if not (solver.plan.fracture and len(solver.crack_index)):
             launch(reset_stats, 1, self.dev_stats)
-        launch(g2p_kernel, m.n_particles, a.grid, dt, d.origin, 1.0 / m.dx, state.time + dt, d.colliders, d.pin_mask,
-               d.pin_velocity, d.pin_stop, a.particle_crack, a.particle_x, a.particle_v, a.particle_C,
-               self.dev_stats)
+        for grid, s, e in self.fields(solver):
+            pins = (rows(d.pin_mask, s, e), rows(d.pin_velocity, s, e), rows(d.pin_stop, s, e))
+            launch(g2p_kernel, e - s, grid, dt, d.origin, 1.0 / m.dx, state.time + dt, d.colliders, *pins,
+                   rows(a.particle_crack, s, e), rows(a.particle_x, s, e), rows(a.particle_v, s, e),
+                   rows(a.particle_C, s, e), self.dev_stats)
         self.dev_stats.copy_to_host(self.stats)
         return float(self.stats[STAT_VMAX]), int(self.stats[STAT_BAD])
 
     def crack(self, solver, state, dt) -> tuple[float, int]:
-        """Crack particles: their contact (serial, on one thread) and update; their speeds and positions open this
-        step's statistics, which G2P completes and reads back."""
+        """Crack particles: their contact with their own body's material (serial, on one thread) and update; their
+        speeds and positions open this step's statistics, which G2P completes and reads back."""
         m, a, d, e = solver.model, solver.a, solver.m, self.extra
-        launch(crack_contact_kernel, 1, a.grid, dt, d.gravity, d.origin, 1.0 / m.dx, e.crack_index,
-               a.particle_damage, d.particle_mass, d.particle_volume, a.particle_force, a.particle_x, a.particle_v)
+        for grid, s, end in self.fields(solver):
+            lo, hi = np.searchsorted(solver.crack_index, (s, end))
+            if hi > lo:
+                launch(crack_contact_kernel, 1, grid, dt, d.gravity, d.origin, 1.0 / m.dx, e.crack_index[lo:hi],
+                       a.particle_damage, d.particle_mass, d.particle_volume, a.particle_force, a.particle_x,
+                       a.particle_v)
         launch(reset_stats, 1, self.dev_stats)
         launch(crack_update_kernel, len(solver.crack_index), dt, state.time + dt, d.colliders, e.valid_lo,
                e.valid_hi, e.crack_index, a.particle_x, a.particle_v, a.particle_C, self.dev_stats)

@@ -1,0 +1,94 @@
+"""Contact between bodies: the figures of docs/results.md ('Contact between bodies').
+
+Usage: python bench/contact.py [spheres|sliding|passing|cost|all] [--radius 5 10] [--steps 20]
+- spheres: two identical elastic spheres (radius in particle spacings, spacing half a cell) meeting head-on at 0.05
+  of the P-wave speed (tests/contact_cases.py): where contact starts relative to the geometric touch, momentum,
+  kinetic energy after over before, separation; with separate fields (the default) and one shared field.
+- sliding: a block sliding on an elastic slab with friction 0.3 and 0: deceleration against mu g.
+- passing: two blocks half a cell apart, one sliding past the other: momentum the resting one picks up.
+- cost: time per step of the sphere pair with one field per body against one shared field, by phase.
+"""
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from pdmpm_cli.study.sim import Sim  # noqa: E402
+from tests import contact_cases as C  # noqa: E402
+
+
+def spheres(radii):
+    print("| radius [spacings] | fields | particles | steps | contact starts at gap [cells] | momentum change | "
+          "KE after / before | energy after / before | gap at end [cells] | wall [s] |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for r in radii:
+        for mode in ("separate", "shared"):
+            o = C.sphere_collision(r, mode=mode)
+            gap = "none" if o["contact_gap"] is None else f"{o['contact_gap']:+.2f}"
+            print(f"| {r:g} | {mode} | {o['particles']} | {o['steps']} | {gap} | {o['momentum']:.1e} | "
+                  f"{100 * o['ke']:.1f} % | {100 * o['energy']:.1f} % | {o['apart']:+.2f} | {o['seconds']:.0f} |",
+                  flush=True)
+
+
+def sliding():
+    print("| friction | deceleration [m/s^2] | / (mu g) | speed at 0.15 s / v0 |")
+    print("|---|---|---|---|")
+    for mu in (0.3, 0.0):
+        o = C.sliding(mu)
+        ratio = f"{o['deceleration'] / (mu * C.G):.4f}" if mu else "-"
+        print(f"| {mu:g} | {o['deceleration']:.4f} | {ratio} | {o['v'][-1]:.5f} |", flush=True)
+
+
+def passing():
+    print("| fields | momentum picked up / m v0 | moving block's speed / v0 |")
+    print("|---|---|---|")
+    for mode in ("separate", "shared"):
+        o = C.passing(mode)
+        print(f"| {mode} | {o['picked_up']:.2e} | {o['speed']:.5f} |", flush=True)
+
+
+def cost(radii, steps: int):
+    print("| radius [spacings] | particles | fields | step [ms] | p2g | grid_update | contact | g2p | forces |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for r in radii:
+        for mode in ("shared", "separate"):
+            sim = Sim(C.sphere_pair(r, mode=mode))
+            sim.solver.clock = time.process_time  # a busy machine: CPU time of this process
+            dt = sim.plan.dt_max
+            for _ in range(3):  # warm-up: compiled kernels loaded
+                sim.solver.substep(sim.state, dt)
+            sim.solver.phase_time.clear()
+            t0 = time.process_time()
+            for _ in range(steps):
+                sim.solver.substep(sim.state, dt)
+            per = 1e3 * (time.process_time() - t0) / steps
+            pt = {k: 1e3 * v / steps for k, v in sim.solver.phase_time.items()}
+            forces = sum(v for k, v in pt.items() if k not in ("p2g", "grid_update", "contact", "g2p"))
+            print(f"| {r:g} | {sim.model.n_particles} | {'one per body' if mode == 'separate' else 'one'} | "
+                  f"{per:.2f} | {pt.get('p2g', 0):.2f} | {pt.get('grid_update', 0):.2f} | "
+                  f"{pt.get('contact', 0):.2f} | {pt.get('g2p', 0):.2f} | {forces:.2f} |", flush=True)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("what", nargs="?", default="all", choices=["spheres", "sliding", "passing", "cost", "all"])
+    ap.add_argument("--radius", type=float, nargs="+", default=[5.0, 10.0], help="sphere radius [spacings]")
+    ap.add_argument("--steps", type=int, default=20, help="steps timed per cost row")
+    args = ap.parse_args()
+    np.set_printoptions(precision=4)
+    if args.what in ("spheres", "all"):
+        spheres(args.radius)
+    if args.what in ("sliding", "all"):
+        sliding()
+    if args.what in ("passing", "all"):
+        passing()
+    if args.what in ("cost", "all"):
+        cost(args.radius, args.steps)
+
+
+if __name__ == "__main__":
+    main()
