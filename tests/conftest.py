@@ -22,10 +22,13 @@ BASE = {
 
 
 def pytest_configure(config):
-    """Under pytest-xdist (the default run: `-n 2`) the workers share the cores: each runs Numba's parallel loops on
-    its share of the threads, so two workers on two cores do not oversubscribe them."""
+    """Under pytest-xdist (the default run: `-n auto`) the workers share the cores: each runs Numba's parallel loops,
+    and the pdmpm processes it starts, on its share of the threads, so the workers do not oversubscribe the cores
+    (and a run a test starts takes the thread count, hence the sums, of the reference it is compared with)."""
     workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-    numba.set_num_threads(max(1, numba.config.NUMBA_NUM_THREADS // workers))
+    threads = max(1, numba.config.NUMBA_NUM_THREADS // workers)
+    numba.set_num_threads(threads)
+    os.environ["NUMBA_NUM_THREADS"] = str(threads)
 
 
 @pytest.fixture

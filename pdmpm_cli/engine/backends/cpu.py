@@ -79,12 +79,18 @@ class CpuBackend:
         return vmax, bad
 
     def crack(self, solver, state, dt) -> tuple[float, int]:
-        """Crack particles meet their own body's material (crack_index is sorted, bodies are particle ranges)."""
+        """Crack particles take their kick and meet their own body's material, then (contact: a field per body)
+        the other bodies' material with no second kick (dt = 0), as they met all material on one shared grid
+        (crack_index is sorted, bodies are particle ranges)."""
         m, idx = solver.model, solver.crack_index
-        for grid, s, e in self.fields(solver, state):
-            lo, hi = np.searchsorted(idx, (s, e))
-            crack_contact(grid, dt, m.gravity, m.origin, 1.0 / m.dx, idx[lo:hi], state.particle_damage,
-                          m.particle_mass, m.particle_volume, state.particle_force, state.particle_x, state.particle_v)
+        fields = self.fields(solver, state)
+        for own in (True, False) if len(fields) > 1 else (True,):
+            for grid, s, e in fields:
+                lo, hi = np.searchsorted(idx, (s, e))
+                which = idx[lo:hi] if own else np.concatenate((idx[:lo], idx[hi:]))
+                crack_contact(grid, dt if own else 0.0, m.gravity, m.origin, 1.0 / m.dx, which,
+                              state.particle_damage, m.particle_mass, m.particle_volume, state.particle_force,
+                              state.particle_x, state.particle_v)
         return crack_particle_update(dt, state.time + dt, m.colliders, solver.valid_lo, solver.valid_hi, idx,
                                      state.particle_x, state.particle_v, state.particle_C)
 

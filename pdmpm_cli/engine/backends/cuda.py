@@ -448,15 +448,20 @@ class CudaBackend:
         return float(self.stats[STAT_VMAX]), int(self.stats[STAT_BAD])
 
     def crack(self, solver, state, dt) -> tuple[float, int]:
-        """Crack particles: their contact with their own body's material (serial, on one thread) and update; their
-        speeds and positions open this step's statistics, which G2P completes and reads back."""
+        """Crack particles: their kick and contact with their own body's material, then with the other bodies'
+        (dt = 0: no second kick), in the CPU's order (serial, on one thread), and update; their speeds and positions
+        open this step's statistics, which G2P completes and reads back."""
         m, a, d, e = solver.model, solver.a, solver.m, self.extra
-        for grid, s, end in self.fields(solver):
-            lo, hi = np.searchsorted(solver.crack_index, (s, end))
-            if hi > lo:
-                launch(crack_contact_kernel, 1, grid, dt, d.gravity, d.origin, 1.0 / m.dx, e.crack_index[lo:hi],
-                       a.particle_damage, d.particle_mass, d.particle_volume, a.particle_force, a.particle_x,
-                       a.particle_v)
+        fields = self.fields(solver)
+        for own in (True, False) if len(fields) > 1 else (True,):
+            for grid, s, end in fields:
+                lo, hi = np.searchsorted(solver.crack_index, (s, end))
+                parts = ((lo, hi, dt),) if own else ((0, lo, 0.0), (hi, len(solver.crack_index), 0.0))
+                for i0, i1, step in parts:
+                    if i1 > i0:
+                        launch(crack_contact_kernel, 1, grid, step, d.gravity, d.origin, 1.0 / m.dx,
+                               e.crack_index[i0:i1], a.particle_damage, d.particle_mass, d.particle_volume,
+                               a.particle_force, a.particle_x, a.particle_v)
         launch(reset_stats, 1, self.dev_stats)
         launch(crack_update_kernel, len(solver.crack_index), dt, state.time + dt, d.colliders, e.valid_lo,
                e.valid_hi, e.crack_index, a.particle_x, a.particle_v, a.particle_C, self.dev_stats)
