@@ -2,11 +2,18 @@
 
 import os
 
-import numba
-import pytest
+# Under pytest-xdist (the default run: `-n auto`) the workers share the cores: each gets its share of Numba's
+# threads, set before Numba is imported so that its thread pool, its private grids and the pdmpm processes a test
+# starts (which inherit the variable) all agree: a run compared bitwise with an in-process reference takes the
+# reference's thread count, hence its sums.
+WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+if WORKERS > 1 and "NUMBA_NUM_THREADS" not in os.environ:
+    os.environ["NUMBA_NUM_THREADS"] = str(max(1, (os.cpu_count() or 1) // WORKERS))
 
-from pdmpm_cli.scene.loader import merge
-from pdmpm_cli.study.sim import Sim
+import pytest  # noqa: E402
+
+from pdmpm_cli.scene.loader import merge  # noqa: E402
+from pdmpm_cli.study.sim import Sim  # noqa: E402
 
 BASE = {
     "simulation": {"duration": 1.0, "fps": 10},
@@ -19,16 +26,6 @@ BASE = {
         "material": {"model": "elastic", "density": 1000.0, "lam": 1e5, "mu": 1e5},
     }],
 }
-
-
-def pytest_configure(config):
-    """Under pytest-xdist (the default run: `-n auto`) the workers share the cores: each runs Numba's parallel loops,
-    and the pdmpm processes it starts, on its share of the threads, so the workers do not oversubscribe the cores
-    (and a run a test starts takes the thread count, hence the sums, of the reference it is compared with)."""
-    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-    threads = max(1, numba.config.NUMBA_NUM_THREADS // workers)
-    numba.set_num_threads(threads)
-    os.environ["NUMBA_NUM_THREADS"] = str(threads)
 
 
 @pytest.fixture
