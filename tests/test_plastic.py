@@ -163,7 +163,7 @@ IMPACT = {
     "gravity": [0, -9.81, 0],
     "bodies": [
         {"name": "slab", "geometry": {"mode": "cloud", "shape": {"type": "box", "center": [0.3, 0.14, 0.3],
-                                                                  "size": [0.4, 0.1, 0.4]}},
+                                                                  "size": [0.24, 0.1, 0.24]}},
          "material": {"model": "plastic", "density": 1000.0, "lam": 2e5, "mu": 2e5, "yield_stress": 2e3}},
         {"name": "ball", "geometry": {"mode": "cloud", "shape": {"type": "sphere", "center": [0.3, 0.29, 0.3],
                                                                   "radius": 0.05}},
@@ -182,7 +182,7 @@ def dent_history(sim_factory, psi_p):
     top = np.flatnonzero((x0[:, 1] > x0[:, 1].max() - 0.015)
                          & (np.hypot(x0[:, 0] - 0.3, x0[:, 2] - 0.3) < 0.03)) + s
     rim = np.flatnonzero((x0[:, 1] > x0[:, 1].max() - 0.015)
-                         & (np.hypot(x0[:, 0] - 0.3, x0[:, 2] - 0.3) > 0.15)) + s
+                         & (np.hypot(x0[:, 0] - 0.3, x0[:, 2] - 0.3) > 0.09)) + s
     depth = []
     for t in np.arange(0.01, 0.2001, 0.01):
         sim.advance(t)
