@@ -54,21 +54,15 @@ def measure(scene: str, overrides: list[str]) -> dict:
             "dt_mean": state.time / max(steps, 1), "dt_limit": limit}
 
 
-def run_all(checkout: Path, scenes, overrides) -> dict[str, dict]:
-    """Each scene in its own process, importing pdmpm_cli from `checkout`; rows by scene."""
-    rows = {}
-    env = dict(os.environ, PYTHONPATH=str(checkout))
-    for scene in scenes:
-        cmd = [sys.executable, str(Path(__file__).resolve()), "--child", scene, *sum((["--set", o] for o in overrides),
-                                                                                    [])]
-        out = subprocess.run(cmd, cwd=checkout, env=env, capture_output=True, text=True)
-        if out.returncode:
-            rows[scene] = {"scene": scene, "error": (out.stderr.strip().splitlines() or ["?"])[-1]}
-        else:
-            rows[scene] = json.loads(out.stdout.strip().splitlines()[-1])
-        print(f"  {checkout.name}: {scene} {rows[scene].get('wall_s', rows[scene].get('error'))}", file=sys.stderr,
-              flush=True)
-    return rows
+def run_scene(checkout: Path, scene: str, overrides) -> dict:
+    """One scene in its own process, importing pdmpm_cli from `checkout`: its row, or its error."""
+    sets = [a for o in overrides for a in ("--set", o)]
+    out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child", scene, *sets], cwd=checkout,
+                         env=dict(os.environ, PYTHONPATH=str(checkout)), capture_output=True, text=True)
+    row = (json.loads(out.stdout.strip().splitlines()[-1]) if out.returncode == 0
+           else {"scene": scene, "error": (out.stderr.strip().splitlines() or ["?"])[-1]})
+    print(f"  {checkout.name}: {scene} {row.get('wall_s', row.get('error'))}", file=sys.stderr, flush=True)
+    return row
 
 
 def table(ours: dict, ref: dict | None, ref_name: str) -> str:
@@ -120,9 +114,9 @@ def main():
             ref = {}
         try:
             for scene in args.scenes:  # in turn, so a drift in the machine's speed hits both alike
-                ours |= run_all(ROOT, [scene], args.overrides)
+                ours[scene] = run_scene(ROOT, scene, args.overrides)
                 if ref is not None:
-                    ref |= run_all(ref_dir, [scene], args.overrides)
+                    ref[scene] = run_scene(ref_dir, scene, args.overrides)
         finally:
             if args.ref:
                 subprocess.run(["git", "worktree", "remove", "--force", str(ref_dir)], cwd=ROOT, capture_output=True)

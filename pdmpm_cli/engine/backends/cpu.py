@@ -84,7 +84,7 @@ class CpuBackend:
         (crack_index is sorted, bodies are particle ranges)."""
         m, idx = solver.model, solver.crack_index
         fields = self.fields(solver, state)
-        for own in (True, False) if len(fields) > 1 else (True,):
+        for own in (True, False):  # with one field the second pass has no particles
             for grid, s, e in fields:
                 lo, hi = np.searchsorted(idx, (s, e))
                 which = idx[lo:hi] if own else np.concatenate((idx[:lo], idx[hi:]))

@@ -453,7 +453,7 @@ class CudaBackend:
         open this step's statistics, which G2P completes and reads back."""
         m, a, d, e = solver.model, solver.a, solver.m, self.extra
         fields = self.fields(solver)
-        for own in (True, False) if len(fields) > 1 else (True,):
+        for own in (True, False):  # with one field the second pass has no particles
             for grid, s, end in fields:
                 lo, hi = np.searchsorted(solver.crack_index, (s, end))
                 parts = ((lo, hi, dt),) if own else ((0, lo, 0.0), (hi, len(solver.crack_index), 0.0))
