@@ -2,7 +2,7 @@
 
 import os
 
-# Under pytest-xdist (the default run: `-n auto`) the workers share the cores: each gets its share of Numba's
+# Under pytest-xdist (`-n auto --dist loadfile`) the workers share the cores: each gets its share of Numba's
 # threads, set before Numba is imported so that its thread pool, its private grids and the pdmpm processes a test
 # starts (which inherit the variable) all agree: a run compared bitwise with an in-process reference takes the
 # reference's thread count, hence its sums.
