@@ -26,8 +26,8 @@ import pytest
 from pdmpm_cli.io.hdf5 import read_run
 from pdmpm_cli.runner import prepare, prepare_scene, simulate
 from pdmpm_cli.scene.schema import Scene
-from tests.conftest import BASE, merge
-from tests.cuda_compare import BUNDLED, SYNTHETIC
+from tests.conftest import BASE, CUDA_COMPARE, CudaCompare, merge
+from tests.cuda_compare import BUNDLED
 
 ROOT = Path(__file__).resolve().parents[1]
 TOL = 1e-12
@@ -41,19 +41,13 @@ def python(*args, sim: bool, timeout=900, env=None):
 
 
 @pytest.fixture(scope="module")
-def compared():
-    """tests.cuda_compare on every case, once for the module: {case: measured differences}. The synthetic cases
-    run 6 steps (so that the block meets the floor and the slab yields), the bundled scenes 2, in two processes
-    side by side (the simulator is slow, and single-threaded)."""
-    env = dict(os.environ, COLUMNS="200", NUMBA_ENABLE_CUDASIM="1")
-    runs = [subprocess.Popen([sys.executable, "-m", "tests.cuda_compare", "--steps", str(steps), *cases],
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, env=env)
-            for steps, cases in ((6, SYNTHETIC), (2, BUNDLED))]
-    rows = []
-    for run in runs:
-        out, err = run.communicate(timeout=1800)
-        assert run.returncode == 0, err[-3000:]
-        rows += [json.loads(line) for line in out.splitlines()]
+def compared(request):
+    """tests.cuda_compare on every case, once for the module: {case: measured differences}. The runs start in
+    the background when the tests are collected (tests/conftest.py), or here under pytest-xdist."""
+    runs = request.config.stash.get(CUDA_COMPARE, None)
+    if runs is None:
+        runs = request.config.stash[CUDA_COMPARE] = CudaCompare()
+    rows = [json.loads(line) for line in runs.rows()]
     for row in rows:
         print(f"\n{row['case']}: {row['particles']} particles, {row['steps']} steps, |dx| {row['x_rel']:.1e}, "
               f"|dv| {row['v_rel']:.1e}, |dC| {row['c_rel']:.1e} (relative), arrays "
