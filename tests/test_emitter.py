@@ -217,3 +217,14 @@ def test_a_rate_the_nozzle_cannot_pass_is_refused(tmp_path):
         prepare_scene(Scene.model_validate(merge(scene, {"simulation": {"backend": "cuda"}})), tmp_path / "s.yaml")
     with pytest.raises(InputError, match="output.usd"):
         prepare_scene(Scene.model_validate(merge(scene, {"output": {"usd": True}})), tmp_path / "s.yaml")
+
+
+def test_pours_are_stable_with_the_automatic_step():
+    """The stability sweep's pours (pdmpm_cli/stability.py): a fast one (5 m/s) onto the floor and one onto a plate
+    sliding away, stable with the automatic step, the born particles' energy counted in the start."""
+    from pdmpm_cli import stability as st
+
+    for case in st.select(["fluid_pour_fast", "fluid_pour_plate"]):
+        row = st.run_case(case)
+        assert row["class"] == "stable", row
+        assert row["particles"] > 400 and row["dt_ratio"] <= 0.4 + 1e-9 and row["cells_per_step"] < 0.1, row
