@@ -45,6 +45,7 @@ def main():
         print(f"| {t:.3f} | {m.n_particles} | {emitted / (em.rate * poured_for) if poured_for else 1:.4f} | "
               f"{volume / (head + em.rate * poured_for):.4f} | {x[below, 1].max() - 0.4 if below.any() else 0:.3f} | "
               f"{r:.3f} | {time.perf_counter() - t0:.0f} |", flush=True)
+    print(f"{state.step} steps")
 
 
 if __name__ == "__main__":
