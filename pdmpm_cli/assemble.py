@@ -2,17 +2,15 @@
 reads a pydantic object."""
 
 import math
-from pathlib import Path
 
 import numpy as np
 
 from pdmpm_cli.engine.bonds import calibration_coefficients, reference_family_terms
 from pdmpm_cli.engine.colliders import BOUNDARY_CODES, BOX, CYLINDER, MESH, PLANE, ROW, SPHERE
 from pdmpm_cli.engine.fracture import critical_stretch
-from pdmpm_cli.discretize import Discretization, shape_region
+from pdmpm_cli.discretize import Discretization
 from pdmpm_cli.engine.emitter import Emitter
-from pdmpm_cli.errors import InputError, SceneValueError
-from pdmpm_cli.geometry import sampling
+from pdmpm_cli.errors import SceneValueError
 from pdmpm_cli.engine.materials import MATERIALS, kind_of
 from pdmpm_cli.engine.model import BodyParams, FractureParams, Model
 from pdmpm_cli.scene.schema import Scene
@@ -123,13 +121,7 @@ def emitter(scene: Scene, disc: Discretization, bodies) -> Emitter | None:
     em = scene.bodies[i].emitter
     if em is None:
         return None
-    h, key = float(disc.body_spacing[i]), ("bodies", i, "emitter")
-    region = shape_region(em.shape, Path("."))
-    try:
-        layer = sampling.fill_shape(region.inside, region.lo, region.hi, h, sampling="lattice", rng=None,
-                                    what=f"body '{scene.bodies[i].name}' emitter")
-    except InputError as e:
-        raise SceneValueError(str(e), key + ("shape",)) from None
+    h, key, layer = float(disc.body_spacing[i]), ("bodies", i, "emitter"), disc.emitter_layer
     v = np.asarray(em.velocity, dtype=np.float64)
     speed = float(np.linalg.norm(v))
     along = layer @ (v / speed)

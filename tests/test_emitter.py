@@ -57,7 +57,7 @@ def test_poured_pile_keeps_its_volume(sim_factory):
     sim.advance(scene["simulation"]["duration"])
     x, poured = sim.state.particle_x, plug + rate * stop
     by_j = float(sim.model.particle_volume @ sim.state.particle_J)
-    print(f"\nemitted {emitted / (rate * stop) - 1:+.2%} of rate x time; pile: sum V0 J {by_j / poured - 1:+.2%}, "
+    print(f"\nemitted {emitted / (rate * stop) - 1:+.2%} of rate x time; pile: sum V0 J {by_j / poured - 1:+.2%} "
           f"of the poured volume; top {x[:, 1].max() - 0.1:.3f} m, "
           f"width {np.ptp(x[:, 0]):.3f} m, speed {np.abs(sim.state.particle_v).max():.3g} m/s")
     assert emitted == pytest.approx(rate * stop, rel=0.01)
@@ -228,3 +228,14 @@ def test_pours_are_stable_with_the_automatic_step():
         row = st.run_case(case)
         assert row["class"] == "stable", row
         assert row["particles"] > 400 and row["dt_ratio"] <= 0.4 + 1e-9 and row["cells_per_step"] < 0.1, row
+
+
+def test_a_nozzle_outside_the_domain_is_refused(tmp_path):
+    from pdmpm_cli.errors import SceneValueError
+    from pdmpm_cli.runner import prepare_scene
+
+    scene = F.pour(0.1)
+    shape = scene["bodies"][0]["emitter"]["shape"] | {"center": [0.18, 0.02, 0.18]}
+    with pytest.raises(SceneValueError, match="3.5 cells from the domain's walls") as err:
+        prepare_scene(Scene.model_validate(with_emitter(shape=shape)), tmp_path / "s.yaml")
+    assert err.value.key == ("bodies", 0, "emitter", "shape")
