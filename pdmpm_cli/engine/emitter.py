@@ -88,8 +88,8 @@ def grow_state(state, first: int, k: int) -> None:
 
 
 def grow(solver, state, layers: int) -> int:
-    """Append `layers` layers to the solver's Model and State (fill values, nozzle rest positions) and bind the
-    solver again; returns the index of the first new particle."""
+    """Append `layers` layers to the solver's Model and State (fill values, nozzle rest positions); returns the
+    index of the first new particle. The caller binds the solver to the State afterwards."""
     first = solver.model.n_particles
     solver.model = grown(solver.model, layers)
     grow_state(state, first, solver.model.n_particles - first)
@@ -97,9 +97,10 @@ def grow(solver, state, layers: int) -> int:
 
 
 def emit(solver, state) -> None:
-    """Births due by the end of the step that starts at state.time: positions, velocity, the material's own start
-    (its families against the particles around), and the energy budget of the blow-up check raised by what the
-    born particles bring and can gain (their kinetic energy, a fall over the domain)."""
+    """The layers due by state.time (the start of the step whose forces were just evaluated): positions (the nozzle
+    points moved on by v since each layer was due), velocity, the material's `born` hook (its families with the
+    particles around), and the energy budget of the blow-up check raised by what the born particles bring and can
+    gain (their kinetic energy, a fall over the domain). Then the solver is bound to the grown State."""
     em = solver.model.emitter
     k0 = state.emitted
     k1 = em.due(state.time)
