@@ -137,7 +137,7 @@ def emitter(scene: Scene, disc: Discretization, bodies) -> Emitter | None:
     stop = min(em.stop if em.stop is not None else math.inf, scene.simulation.duration)
     layers = max(0, math.ceil((stop - em.start) / interval - 1e-9))
     density = bodies[i].params.density
-    return Emitter(i, layer, v, interval, em.start, layers, h**3, density * h**3)
+    return Emitter(i, layer, v, interval, em.start, layers, h**3, density * h**3, disc.n_particles)
 
 
 def build_model(scene: Scene, disc: Discretization) -> Model:

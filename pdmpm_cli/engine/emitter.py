@@ -4,7 +4,8 @@ A layer is the body's lattice points inside the nozzle (N points of volume h^3);
 T = N h^3 / rate, so the emitted volume is rate x time at every layer's time, by construction. Births run on the
 host after a step's force hooks (where the viscoelastic material rebuilds its families: the positions the bonds
 measure from, particle_x_prev, equal particle_x there), so a layer due during the step is born then, at the nozzle
-point advanced by v (t - t_k), and the step's P2G and G2P carry it along.
+point advanced by v (t - t_k), and the step's P2G and G2P carry it along. Each layer is the nozzle's lattice turned
+by one more golden angle about the stream's axis.
 
 Arrays grow with each layer (exact sizes, reallocated on the host): every kernel, diagnostic and writer takes its
 count from the arrays, so nothing else needs an active count. Born particles are appended: the emitting body is the
@@ -14,6 +15,7 @@ of layers born (rest position: the nozzle point), so a checkpoint needs only the
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -23,6 +25,7 @@ from pdmpm_cli.engine.materials import MATERIALS
 from pdmpm_cli.engine.model import Model
 
 TIME_TOLERANCE = 1e-9  # a layer due within this fraction of the interval after the step's start is born with it
+GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))  # [rad] turn of each layer about the stream's axis
 
 
 @dataclass(frozen=True)
@@ -35,6 +38,18 @@ class Emitter:
     layers: int  # layers born over the run
     volume: float  # h^3 [m^3]
     mass: float  # rho h^3 [kg]
+    first: int  # particles before the first born one (the initial count)
+
+    def points(self, k: int) -> np.ndarray:
+        """Nozzle points of layer k: the layer turned by k golden angles about the stream's axis through its centre.
+        The turn keeps each layer's spacing and volume; without it every stream line would sit on the same lattice
+        column, and the pile would spread in fingers along the lattice directions."""
+        axis = self.velocity / np.linalg.norm(self.velocity)
+        c = self.layer.mean(axis=0)
+        r = self.layer - c
+        a = k * GOLDEN_ANGLE
+        cross = np.cross(axis, r)
+        return c + r * math.cos(a) + cross * math.sin(a) + np.outer(r @ axis, axis) * (1.0 - math.cos(a))
 
     @property
     def particles(self) -> int:
@@ -57,6 +72,7 @@ def grown(model: Model, layers: int) -> Model:
     if k == 0:
         return model
     n = model.n_particles
+    k0 = (n - em.first) // len(em.layer)
 
     def more(a, fill=0):
         return np.concatenate([a, np.full((k,) + a.shape[1:], fill, dtype=a.dtype)])
@@ -68,7 +84,7 @@ def grown(model: Model, layers: int) -> Model:
         pins = {"pin_mask": more(model.pin_mask), "pin_velocity": more(model.pin_velocity),
                 "pin_stop": more(model.pin_stop, np.inf)}
     return replace(
-        model, rest_x=np.concatenate([model.rest_x, np.tile(em.layer, (layers, 1))]),
+        model, rest_x=np.concatenate([model.rest_x, *(em.points(k0 + j) for j in range(layers))]),
         particle_volume=more(model.particle_volume, em.volume), particle_mass=more(model.particle_mass, em.mass),
         particle_body=more(model.particle_body, em.body),
         bond_start=np.concatenate([model.bond_start, np.full(k, model.bond_start[n], dtype=model.bond_start.dtype)]),
@@ -112,7 +128,7 @@ def emit(solver, state) -> None:
     for j, k in enumerate(range(k0, k1)):
         lag = state.time - (em.start + k * em.interval)
         rows = slice(first + j * n_layer, first + (j + 1) * n_layer)
-        state.particle_x[rows] = em.layer + lag * em.velocity
+        state.particle_x[rows] = em.points(k) + lag * em.velocity
         state.particle_v[rows] = em.velocity
     state.emitted = k1
     m = solver.model
