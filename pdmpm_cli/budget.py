@@ -146,7 +146,8 @@ def estimate(scene, base_dir: Path, threads: int | None = None) -> Estimate:
         threads = numba.get_num_threads() if scene.simulation.backend == "cpu" else 0
     dx = scene.grid.cell_size
     nodes = math.prod(round((b - a) / dx) + 1 for a, b in zip(scene.grid.domain.min, scene.grid.domain.max))
-    return Estimate(tuple(_body(i, b, dx, base_dir, scene.simulation.duration) for i, b in enumerate(scene.bodies)), float(nodes), threads)
+    bodies = tuple(_body(i, b, dx, base_dir, scene.simulation.duration) for i, b in enumerate(scene.bodies))
+    return Estimate(bodies, float(nodes), threads)
 
 
 def available_memory() -> int | None:
