@@ -2,11 +2,9 @@
 it (measured from the particles: the settled layer's height times the tank's floor area, and sum V0 J), a resumed
 run continues bitwise across births, and the outputs hold a particle count that changes between frames."""
 
-import subprocess
-import sys
+import shutil
 from types import SimpleNamespace
 
-import h5py
 import meshio
 import numpy as np
 import pytest
@@ -169,6 +167,21 @@ def test_render_reads_a_pour(poured, monkeypatch, capsys):
     code, err = pdmpm(monkeypatch, capsys, "render", folder, "--no-video", "--resolution", "160x120")
     assert code == 0, err
     assert len(sorted((root / "frames").glob("frame_*.png"))) == 7
+
+
+def test_render_reads_a_pour_from_its_vtk_series(poured):
+    """Without run.h5 `pdmpm render` reads the VTU files: every frame's particles are drawn (the last frame's
+    bodies and volumes cover the earlier frames' particles)."""
+    from pdmpm_cli.render.scene import present
+    from pdmpm_cli.render.source import open_run
+
+    folder = poured[0] / "vtk_only"
+    shutil.copytree(poured[0] / "whole", folder, ignore=shutil.ignore_patterns("run.h5", "frames"))
+    source = open_run(folder)
+    last = source.read(len(source) - 1)
+    assert len(source.particle_body) == len(last.x) > len(source.read(0).x)
+    idx = np.flatnonzero(source.particle_body == 0)
+    assert len(present(idx, last)) == len(last.x)
 
 
 def with_emitter(**changes) -> dict:
