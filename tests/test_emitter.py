@@ -2,6 +2,7 @@
 it (measured from the particles: the settled layer's height times the tank's floor area, and sum V0 J), a resumed
 run continues bitwise across births, and the outputs hold a particle count that changes between frames."""
 
+import math
 import shutil
 from types import SimpleNamespace
 
@@ -252,3 +253,19 @@ def test_a_nozzle_outside_the_domain_is_refused(tmp_path):
     with pytest.raises(SceneValueError, match="3.5 cells from the domain's walls") as err:
         prepare_scene(Scene.model_validate(with_emitter(shape=shape)), tmp_path / "s.yaml")
     assert err.value.key == ("bodies", 0, "emitter", "shape")
+
+
+def test_the_memory_check_counts_what_the_emitter_bears(tmp_path):
+    """budget.estimate adds rate x time / h^3 to the emitting body, so a pour too large for the machine's memory is
+    refused before any sampling."""
+    from pdmpm_cli import budget
+    from pdmpm_cli.errors import InputError
+
+    scene = Scene.model_validate(F.pour(0.3))
+    est = budget.estimate(scene, tmp_path)
+    h, rate = 0.01, scene.bodies[0].emitter.rate
+    head = 2 * math.pi * 0.02**2 * h / h**3  # the head's cylinder: volume / h^3
+    assert est.particles == pytest.approx(head + rate * 0.3 / h**3)
+    huge = Scene.model_validate(merge(F.pour(1e4), {"simulation": {"fps": 0.01}}))
+    with pytest.raises(InputError, match="memory"):
+        budget.check_memory(huge, tmp_path, "pour.yaml", available=int(1e9))
