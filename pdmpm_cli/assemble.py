@@ -122,6 +122,8 @@ def emitter(scene: Scene, disc: Discretization, bodies) -> Emitter | None:
     if em is None:
         return None
     h, key, layer = float(disc.body_spacing[i]), ("bodies", i, "emitter"), disc.emitter_layer
+    if MATERIALS[bodies[i].kind].born is None:
+        raise SceneValueError(f"material {bodies[i].kind} cannot be emitted (it has no `born` hook)", key)
     v = np.asarray(em.velocity, dtype=np.float64)
     speed = float(np.linalg.norm(v))
     along = layer @ (v / speed)
