@@ -9,6 +9,8 @@ from pdmpm_cli.engine.bonds import calibration_coefficients, reference_family_te
 from pdmpm_cli.engine.colliders import BOUNDARY_CODES, BOX, CYLINDER, MESH, PLANE, ROW, SPHERE
 from pdmpm_cli.engine.fracture import critical_stretch
 from pdmpm_cli.discretize import Discretization
+from pdmpm_cli.engine.emitter import Emitter
+from pdmpm_cli.errors import SceneValueError
 from pdmpm_cli.engine.materials import MATERIALS, kind_of
 from pdmpm_cli.engine.model import BodyParams, FractureParams, Model
 from pdmpm_cli.scene.schema import Scene
@@ -57,6 +59,10 @@ def flow_speed(scene: Scene, x: np.ndarray, body) -> float:
     centre = x.mean(axis=0) if len(x) else np.zeros(3)
     spin = np.linalg.norm(body.angular_velocity) * (np.linalg.norm(x - centre, axis=1).max() if len(x) else 0.0)
     v0 = float(np.linalg.norm(body.velocity)) + float(spin)
+    if body.emitter is not None:  # born particles leave the nozzle at its velocity, from its height
+        v0 = max(v0, float(np.linalg.norm(body.emitter.velocity)))
+        if hasattr(body.emitter.shape, "center"):
+            x = np.vstack([x, np.asarray(body.emitter.shape.center, dtype=np.float64)[None]])
     fall = 0.0
     if np.any(g) and len(x):
         down = g / np.linalg.norm(g)
@@ -107,6 +113,35 @@ def contact_friction(scene: Scene) -> np.ndarray:
     return out
 
 
+def emitter(scene: Scene, disc: Discretization, bodies) -> Emitter | None:
+    """The last body's emitter: its layer (the body's lattice points inside the nozzle), the interval N h^3 / rate
+    between layers and how many are due before the run ends. A rate the nozzle cannot pass at the given speed (a
+    layer still in the nozzle when the next is due) is refused."""
+    i = len(scene.bodies) - 1
+    em = scene.bodies[i].emitter
+    if em is None:
+        return None
+    h, key, layer = float(disc.body_spacing[i]), ("bodies", i, "emitter"), disc.emitter_layer
+    if MATERIALS[bodies[i].kind].born is None:
+        raise SceneValueError(f"material {bodies[i].kind} cannot be emitted (it has no `born` hook)", key)
+    v = np.asarray(em.velocity, dtype=np.float64)
+    speed = float(np.linalg.norm(v))
+    along = layer @ (v / speed)
+    thickness = float(along.max() - along.min()) + h
+    volume = len(layer) * h**3
+    interval = volume / em.rate
+    if speed * interval < thickness * (1.0 - 1e-9):
+        raise SceneValueError(
+            f"rate {em.rate:.4g} m^3/s is more than the nozzle passes at {speed:.4g} m/s: each layer of {len(layer)} "
+            f"particles ({volume:.4g} m^3, {thickness:.4g} m thick along the velocity) must leave the nozzle before "
+            f"the next is due; use rate <= {volume * speed / thickness:.4g} m^3/s or a faster velocity",
+            key + ("rate",))
+    stop = min(em.stop if em.stop is not None else math.inf, scene.simulation.duration)
+    layers = max(0, math.ceil((stop - em.start) / interval - 1e-9))
+    density = bodies[i].params.density
+    return Emitter(i, layer, v, interval, em.start, layers, h**3, density * h**3, disc.n_particles)
+
+
 def build_model(scene: Scene, disc: Discretization) -> Model:
     n = disc.n_particles
     omega = np.zeros(n)
@@ -116,12 +151,13 @@ def build_model(scene: Scene, disc: Discretization) -> Model:
     g = scene.grid
     lo, hi = np.asarray(g.domain.min, dtype=np.float64), np.asarray(g.domain.max, dtype=np.float64)
     cells = np.ceil((hi - lo) / g.cell_size - 1e-9).astype(int)
+    bodies = body_params(scene, disc)
     return Model(
         rest_x=disc.rest_x, particle_volume=disc.volume, particle_mass=disc.mass, particle_body=disc.body,
         bond_start=disc.bond_start, bond_nbr=disc.bond_nbr, particle_Kinv=kinv,
         particle_coef=calibration_coefficients(omega, disc.body, disc.body_horizon), particle_omega=omega,
         pin_mask=disc.pin_mask, pin_velocity=disc.pin_velocity, pin_stop=disc.pin_stop,
-        bodies=body_params(scene, disc),
+        bodies=bodies, emitter=emitter(scene, disc, bodies),
         colliders=collider_table(scene.colliders, disc.collider_samples), gravity=np.asarray(scene.gravity, dtype=np.float64),
         wind_velocity=np.asarray(scene.wind.velocity if scene.wind else (0.0, 0.0, 0.0), dtype=np.float64),
         wind_drag=scene.wind.drag if scene.wind else 0.0,

@@ -117,7 +117,7 @@ def _area(shape, base_dir: Path) -> float:
     return float(0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1).sum())
 
 
-def _body(i: int, body, dx: float, base_dir: Path) -> BodyCount:
+def _body(i: int, body, dx: float, base_dir: Path, duration: float = 0.0) -> BodyCount:
     geo = body.geometry
     key = f"bodies.{i}.geometry.spacing"
     if geo.mode == "voronoi":
@@ -128,6 +128,9 @@ def _body(i: int, body, dx: float, base_dir: Path) -> BodyCount:
     h, ratio = geo.spacing or 0.5 * dx, geo.horizon
     if geo.mode == "cloud":
         n = _volume(geo.shape, base_dir) / h**3
+        if body.emitter is not None:  # and what its emitter bears: rate x time / h^3
+            stop = min(body.emitter.stop or duration, duration)
+            n += max(0.0, stop - body.emitter.start) * body.emitter.rate / h**3
         family = 4 / 3 * math.pi * ratio**3 - 1
     else:  # shell: layers under the surface, bonds to the layers within the horizon
         n = _area(geo.surface, base_dir) / h**2 * geo.layers
@@ -143,7 +146,8 @@ def estimate(scene, base_dir: Path, threads: int | None = None) -> Estimate:
         threads = numba.get_num_threads() if scene.simulation.backend == "cpu" else 0
     dx = scene.grid.cell_size
     nodes = math.prod(round((b - a) / dx) + 1 for a, b in zip(scene.grid.domain.min, scene.grid.domain.max))
-    return Estimate(tuple(_body(i, b, dx, base_dir) for i, b in enumerate(scene.bodies)), float(nodes), threads)
+    bodies = tuple(_body(i, b, dx, base_dir, scene.simulation.duration) for i, b in enumerate(scene.bodies))
+    return Estimate(bodies, float(nodes), threads)
 
 
 def available_memory() -> int | None:
@@ -204,8 +208,8 @@ def output_bytes(prep, frames: int | None = None) -> float:
     frames = plan.frames + 1 if frames is None else frames
     fields = 24 + sum(field_bytes(f) for f in scene.output.fields)
     vertices = sum(len(m.vertices) for m in prep.disc.meshes)
-    h5 = (fields * plan.particles + 24 * vertices) if scene.output.hdf5 else 0
-    vtk = (fields + 44) * plan.particles if scene.output.vtk else 0  # + body, volume, mass, bonds, X
+    h5 = (fields * plan.capacity + 24 * vertices) if scene.output.hdf5 else 0
+    vtk = (fields + 44) * plan.capacity if scene.output.vtk else 0  # + body, volume, mass, bonds, X
     ply = 48 * vertices if scene.output.meshes else 0  # float32 vertices and their share of the triangles
     return float(frames * (h5 + vtk + ply))
 

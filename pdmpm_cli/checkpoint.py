@@ -1,7 +1,7 @@
 """Checkpoints: the complete simulation state every `output.checkpoint_every` frames, so that
 `pdmpm run --resume OUTDIR` continues a killed run and produces the frames an uninterrupted run would.
 
-``OUTDIR/checkpoints/frame_NNNNN.h5`` (``format = "pdmpm-checkpoint"``, ``format_version = 2``)::
+``OUTDIR/checkpoints/frame_NNNNN.h5`` (``format = "pdmpm-checkpoint"``, ``format_version = 3``)::
 
     /               attributes: format, format_version, frame, threads (Numba threads),
                       pdmpm_version, scene_path, overrides (JSON list of --set items), variant ("" for none),
@@ -9,7 +9,8 @@
                       model_sha256 (hash of the discretisation),
                       state_<name> for each of the State's scalars (time, step, dt_prev, vmax, ...)
     /state/<name>   every allocated State array that is not transient (declared in engine.fields and by the
-                    materials), including the CSR families, which viscoelastic bodies rebuild
+                    materials), including the CSR families, which viscoelastic bodies rebuild; an emitter's born
+                    particles are in them (state_emitted layers: restore grows the Model and State to match)
 
 The output thread writes a checkpoint after the frame it belongs to (so it never names a frame that is not on
 disk), to a temporary file that is fsynced and renamed (io.atomic), and keeps the two newest: a kill while one is
@@ -33,6 +34,7 @@ import numba
 import numpy as np
 
 from pdmpm_cli import __version__
+from pdmpm_cli.engine.emitter import grow
 from pdmpm_cli.engine.state import SCALARS, State
 from pdmpm_cli.errors import InputError
 from pdmpm_cli.io.atomic import atomic_path, fsync_file
@@ -40,7 +42,7 @@ from pdmpm_cli.io.hdf5 import reserved_file
 from pdmpm_cli.io.vtk import frame_index
 
 FORMAT = "pdmpm-checkpoint"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 FOLDER = "checkpoints"
 KEEP = 2
 
@@ -176,7 +178,11 @@ def _differences(old: Any, new: Any, key: str = "") -> list[str]:
 
 
 def restore(ckpt: Checkpoint, state: State, solver) -> None:
-    """Overwrite a freshly started State with the checkpoint's, and bind the solver to it again."""
+    """Overwrite a freshly started State with the checkpoint's, and bind the solver to it again (after growing the
+    Model and State by the layers an emitter had born, so the shapes match)."""
+    layers = int(ckpt.attrs.get("state_emitted", 0)) - state.emitted
+    if layers > 0 and solver.model.emitter is not None:
+        grow(solver, state, layers)
     expected = state.lasting()
     wrong = sorted(name for name in expected.keys() | ckpt.arrays.keys()
                    if name not in expected or name not in ckpt.arrays

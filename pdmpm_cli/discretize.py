@@ -124,6 +124,7 @@ class Discretization:
     notes: list[str]  # repairs made to input meshes, reported as warnings
     collider_samples: dict = field(default_factory=dict)  # scene collider index -> DistanceSamples of a mesh collider
     collider_meshes: dict = field(default_factory=dict)  # scene collider index -> its SurfaceMesh, placed, at t = 0
+    emitter_layer: np.ndarray | None = None  # (N, 3) one layer of the last body's emitter: its lattice in the nozzle
 
     @property
     def n_particles(self) -> int:
@@ -283,6 +284,28 @@ def pin_particles(pin, body, sample: BodySample, base_dir: Path) -> np.ndarray:
     return mask
 
 
+def emitter_layer(scene: Scene, base_dir: Path, disc: Discretization) -> np.ndarray | None:
+    """One layer of the last body's emitter (engine.emitter): the lattice points of the body's spacing inside the
+    nozzle shape, or None without an emitter."""
+    i = len(scene.bodies) - 1
+    em = scene.bodies[i].emitter
+    if em is None:
+        return None
+    region, key = shape_region(em.shape, base_dir), ("bodies", i, "emitter", "shape")
+    try:
+        layer = sampling.fill_shape(region.inside, region.lo, region.hi, float(disc.body_spacing[i]),
+                                    sampling="lattice", rng=None, what=f"body '{scene.bodies[i].name}' emitter")
+    except InputError as e:
+        raise SceneValueError(str(e), key) from None
+    dx = scene.grid.cell_size  # the particles' valid region, 3.5 cells inside the walls (check_sizes)
+    lo, hi = np.asarray(scene.grid.domain.min) + 3.5 * dx, np.asarray(scene.grid.domain.max) - 3.5 * dx
+    if np.any(layer < lo) or np.any(layer > hi):
+        raise SceneValueError(f"the nozzle's particles span {np.round(layer.min(axis=0), 4).tolist()} to "
+                              f"{np.round(layer.max(axis=0), 4).tolist()} m, but they must keep 3.5 cells from the "
+                              f"domain's walls ({lo.tolist()} to {hi.tolist()} m); move the nozzle inside", key)
+    return layer
+
+
 def discretize(scene: Scene, base_dir: Path) -> Discretization:
     """Sample every body (its size already checked by `check_sizes`), build its bonds, sample the mesh colliders'
     distances, and note where the particles will not behave as the body was drawn. A problem with a shape is a
@@ -292,6 +315,7 @@ def discretize(scene: Scene, base_dir: Path) -> Discretization:
         samples = {i: distance_samples(m, 0.5 * scene.grid.cell_size) for i, m in surfaces.items()}
         disc = sample_bodies(scene, base_dir)
         disc.collider_samples, disc.collider_meshes = samples, surfaces
+        disc.emitter_layer = emitter_layer(scene, base_dir, disc)
     except SceneValueError as e:
         raise keyed(e, scene) from None
     disc.notes += family_notes(scene, disc)

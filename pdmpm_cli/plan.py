@@ -18,6 +18,7 @@ from pdmpm_cli.engine.materials import MATERIALS
 from pdmpm_cli.engine.model import Model
 from pdmpm_cli.engine.plan import BodyPlan, Plan
 from pdmpm_cli.engine.state import shape_of
+from pdmpm_cli.errors import InputError
 from pdmpm_cli.scene.schema import Scene
 
 # Static arrays of the Model, listed with the State's so the Plan's inventory (and memory) is complete.
@@ -95,6 +96,8 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
     phases = ["fbar"] if need_fbar else []
     for hook in ("before_forces", "forces", "after_forces"):  # each named by its function: return_map:plastic
         phases += [f"{getattr(k, hook).__name__}:{k.name}" for k in used if getattr(k, hook) is not None]
+    if model.emitter is not None:  # births after the force hooks (engine.emitter)
+        phases.append("emit")
     # Crack particles meet the grid's material after its update and before intact particles read it back.
     contact = len(model.contact_friction) > 0
     phases += ["p2g", "grid_update", *(["contact"] if contact else []), *(["crack"] if fracture else []), "g2p",
@@ -105,12 +108,22 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
     fields.update({name: ((n,) + tail, dt) for name, (tail, dt) in MODEL_FIELDS.items()})
     if len(disc.pin_mask):
         fields.update({name: ((n,) + tail, dt) for name, (tail, dt) in PIN_FIELDS.items()})
-    memory = sum(int(np.prod(shape)) * np.dtype(dt).itemsize for shape, dt in fields.values())
+    emitted = model.emitter.particles if model.emitter is not None else 0
+    if emitted and sim.backend != "cpu":
+        raise InputError("an emitter runs on the CPU backend only (its births grow the arrays on the host); run with "
+                         "--backend cpu, or remove the emitter")
+    if emitted and scene.output.usd:
+        raise InputError("output.usd cannot hold a particle count that changes between frames yet; an emitter "
+                         "scene writes run.h5, VTK and PLY: set output.usd: false")
+    # Arrays grow with the births: the memory is the one at the final count (particle and bond arrays scaled).
+    scale = (n + emitted) / n if n else 1.0
+    memory = sum(int(np.prod(shape) * (scale if shape and shape[0] in (n, n + 1, nb) else 1.0))
+                 * np.dtype(dt).itemsize for shape, dt in fields.values())
     return Plan(
         phases=tuple(phases), fields=fields, bodies=tuple(bodies), particles=n, bonds=nb,
         grid_nodes=tuple(model.grid_shape), cell_size=scene.grid.cell_size,
         frames=max(1, int(round(sim.duration * sim.fps))), frame_dt=frame_dt, dt_user=sim.dt,
         dt_cfl=dt_cfl, dt_bond=dt_bond, dt_max=dt_max, binding=binding, dt_reduced=reduced, wave_speed=wave,
         memory_bytes=memory, notes=tuple(disc.notes), backend=sim.backend, fbar=need_fbar, fracture=fracture,
-        contact=contact,
+        contact=contact, emitted=emitted,
     )

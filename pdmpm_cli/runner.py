@@ -186,7 +186,8 @@ def _writers(prep: Prepared, out: Path, static: dict, keep: int) -> list:
         # readers such as render.
         record = {**prep.plan.to_dict(), "scene": scene.model_dump(mode="json"), "wall_cells": WALL}
         writers.append(Hdf5RunWriter(out / "run.h5", scene_text=prep.text, plan=json.loads(json.dumps(
-            record, default=_jsonable)), static=static, compression=scene.output.compression))
+            record, default=_jsonable)), static=static, compression=scene.output.compression,
+            capacity=prep.plan.capacity if prep.plan.emitted else None))
     if scene.output.vtk:
         writers.append(VtkSeriesWriter.reopen(out / "vtk", static=static, frames=keep) if keep else
                        VtkSeriesWriter(out / "vtk", static=static))
@@ -205,6 +206,7 @@ def _writers(prep: Prepared, out: Path, static: dict, keep: int) -> list:
 def fluid_surfaces(prep: Prepared) -> FluidSurfaces:
     """The fluid (viscoelastic) bodies whose reconstructed surfaces the exporters write each frame."""
     m = prep.model
+    m = m.final  # an emitting body's range at its final count: a frame holds a prefix of it
     return FluidSurfaces([FluidBody(b.name, b.start, b.end, b.spacing, m.particle_volume[b.start:b.end])
                           for b in m.bodies if b.kind == "viscoelastic"])
 
@@ -248,7 +250,8 @@ def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwr
             checkpoint.restore(resume, state, solver)
             first = resume.frame
         meshes = prep.disc.meshes
-        writers = _writers(prep, out, static_fields(model, meshes), first + 1 if resume else 0)
+        # An emitter's particles are all in the static fields (Model.final); a frame holds the first of them.
+        writers = _writers(prep, out, static_fields(model.final, meshes), first + 1 if resume else 0)
         every, head = scene.output.checkpoint_every, checkpoint.header(prep)
         if resume is not None:  # the thread count the run started with, which identical frames need
             head["threads"] = resume.attrs["threads"]
@@ -260,7 +263,7 @@ def simulate(prep: Prepared, out: Path, reporter: Reporter | None = None, overwr
                 sink.submit(0, 0.0, frame_fields(state, scene.output.fields, model, meshes))
             for f in range(first + 1, plan.frames + 1):
                 solver.advance(state, f * plan.frame_dt, on_substep)  # ends with the host State current
-                sink.submit(f, state.time, frame_fields(state, scene.output.fields, model, meshes))
+                sink.submit(f, state.time, frame_fields(state, scene.output.fields, solver.model, meshes))
                 if every and f % every == 0 and f < plan.frames:
                     sink.call(f"checkpoint at frame {f}",
                               functools.partial(checkpoint.save, out, f, checkpoint.snapshot(state), head))

@@ -76,6 +76,36 @@ def couette(duration, dx=0.01, depth=0.1, length=0.2, width=0.04, speed=0.1, den
     }
 
 
+def pour(duration, dx=0.02, radius=0.02, speed=0.5, fill=1.0, height=0.25, tank=0.16, density=1400.0, mu=1000.0,
+         tau=0.002, stop=None, plate_velocity=None) -> dict:
+    """A liquid poured from a nozzle (a disc one spacing h = dx / 2 thick, axis y) at `height` above the floor of a
+    square tank (slip walls) at y = 0.1 m: rate = fill x (nozzle lattice area N h^2) x speed, so fill 1 is a
+    continuous stream. A short plug of the same liquid below the nozzle is the stream's head at t = 0. With
+    `plate_velocity` the floor is a sticky plate moving at that velocity [m/s] instead."""
+    h = dx / 2
+    c, y0 = 0.1 + tank / 2, 0.1
+    ny = y0 + height
+    n = sum(1 for i in range(-10, 10) for k in range(-10, 10) if (i + 0.5) ** 2 + (k + 0.5) ** 2 <= (radius / h) ** 2)
+    emitter = {"shape": {"type": "cylinder", "center": [c, ny, c], "radius": radius, "height": h,
+                         "rotation": [90, 0, 0]},
+               "velocity": [0, -speed, 0], "rate": fill * n * h * h * speed}
+    if stop is not None:
+        emitter["stop"] = stop
+    floor = ([{"type": "plane", "point": [0, y0, 0], "normal": [0, 1, 0], "boundary": "sticky",
+               "velocity": list(plate_velocity)}] if plate_velocity is not None else planes(([0, y0, 0], [0, 1, 0])))
+    return {
+        "simulation": {"duration": duration, "fps": 20},
+        "grid": {"cell_size": dx, "domain": {"min": [0, 0, 0], "max": [tank + 0.2, ny + 0.1, tank + 0.2]}},
+        "gravity": [0, -G, 0],
+        "bodies": [{"name": "pour", "geometry": {"mode": "cloud", "sampling": "lattice", "shape": {
+            "type": "cylinder", "center": [c, ny - 2 * h, c], "radius": radius, "height": 2 * h,
+            "rotation": [90, 0, 0]}},
+            "material": liquid(density, mu, tau), "velocity": [0, -speed, 0], "emitter": emitter}],
+        "colliders": floor + planes(([0.1, 0, 0], [1, 0, 0]), ([0.1 + tank, 0, 0], [-1, 0, 0]),
+                                    ([0, 0, 0.1], [0, 0, 1]), ([0, 0, 0.1 + tank], [0, 0, -1])),
+    }
+
+
 def mid_layer_velocity(x, v, h, centre, depth) -> float:
     """Mean x velocity of the particles within h of mid-depth, within a depth of the layer's middle in x [m/s]."""
     sel = (np.abs(x[:, 1] - centre[1]) < h) & (np.abs(x[:, 0] - centre[0]) < 0.5 * depth)

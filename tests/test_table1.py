@@ -61,8 +61,9 @@ def test_wall_breaks_into_a_few_large_pieces():
 
 
 def test_honey_spreads_and_piles():
+    """Poured from the neck, the honey piles and spreads on the plate, keeping the poured volume within 3 %."""
     m = metrics("honey")
-    assert m["spread_ratio"] > 1.5 and m["height_mm"] > 60
+    assert m["spread_ratio"] > 1.5 and m["height_mm"] > 60 and abs(m["volume_ratio"] - 1.0) < 0.03
 
 
 def test_cream_flows_but_keeps_height():

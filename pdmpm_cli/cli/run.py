@@ -120,8 +120,9 @@ def run(
     for w in [*plan.warnings(), *budget.warnings(prep)]:
         console.print(f"[yellow]warning:[/] {escape(w)}")
     budget.check_output(prep, out, plan.frames - (ckpt.frame if ckpt else -1), reclaim=overwrite)
-    console.print(f"{escape(prep.scene.name)}: {plan.particles} particles, {plan.bonds} bonds, {plan.frames} frames, "
-                  f"dt <= {plan.dt_max:.3g} s on {plan.backend} -> {escape(str(out))}")
+    born = f" + {plan.emitted} emitted" if plan.emitted else ""
+    console.print(f"{escape(prep.scene.name)}: {plan.particles} particles{born}, {plan.bonds} bonds, {plan.frames} "
+                  f"frames, dt <= {plan.dt_max:.3g} s on {plan.backend} -> {escape(str(out))}")
     if ckpt is not None:
         console.print(f"resuming from frame {ckpt.frame} (t = {ckpt.attrs['state_time']:.6g} s, "
                       f"step {ckpt.attrs['state_step']}); frames after it are written again")

@@ -37,8 +37,9 @@ def validate(
     plan = prep.plan
     for w in [*plan.warnings(), *warnings(prep)]:
         console.print(f"[yellow]warning:[/] {escape(w)}")
-    console.print(f"{escape(str(scene))}: OK ({plan.particles} particles, {plan.bonds} bonds, {plan.frames} frames; "
-                  f"arrays {gib(plan.memory_bytes)}, output about {gib(output_bytes(prep))})")
+    born = f" + {plan.emitted} emitted" if plan.emitted else ""
+    console.print(f"{escape(str(scene))}: OK ({plan.particles} particles{born}, {plan.bonds} bonds, {plan.frames} "
+                  f"frames; arrays {gib(plan.memory_bytes)}, output about {gib(output_bytes(prep))})")
     if explain:
         print_plan(console, plan)
     if limits:

@@ -59,6 +59,16 @@ class Model:
     wall_friction: float
     contact_friction: np.ndarray  # (bodies, bodies) Coulomb coefficients of contact between bodies [-]; (0, 0):
     # the bodies share one grid field (one body, or contact mode shared)
+    emitter: Any = None  # engine.emitter.Emitter of the last body, or None
+
+    @property
+    def final(self) -> Model:
+        """The Model with every particle an emitter will bear over the run (itself without an emitter)."""
+        if self.emitter is None:
+            return self
+        from pdmpm_cli.engine.emitter import grown
+
+        return grown(self, self.emitter.layers)
 
     @property
     def n_particles(self) -> int:

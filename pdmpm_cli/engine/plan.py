@@ -44,6 +44,13 @@ class Plan:
     fbar: bool = False  # some body's forces read Fbar (eq. 4)
     fracture: bool = False  # some body can fracture (section 6): crack particles and the fracture pass
     contact: bool = False  # one grid field per body and the contact pass between them (engine/contact.py)
+    emitted: int = 0  # particles an emitter bears over the run (engine.emitter), after the initial `particles`: the
+    # layers due before the end (one due within the last step's span is not born, so this bounds the count)
+
+    @property
+    def capacity(self) -> int:
+        """The most particles the run holds: the initial ones and every one an emitter bears."""
+        return self.particles + self.emitted
 
     def to_dict(self) -> dict:
         return asdict(self)

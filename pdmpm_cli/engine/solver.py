@@ -14,6 +14,7 @@ import numpy as np
 
 from pdmpm_cli.engine.bonds import AVERAGED_DEFORMATION, averaged_deformation, bond_reference_terms
 from pdmpm_cli.engine.colliders import header_rows
+from pdmpm_cli.engine.emitter import emit
 from pdmpm_cli.engine.fracture import CRITERION, damage, fracture_update
 from pdmpm_cli.engine.materials import MATERIALS, declared_fields
 from pdmpm_cli.engine.model import Model
@@ -136,6 +137,9 @@ class Solver:
                 if fn is not None:
                     with self.timed(f"{fn.__name__}:{kind.name}"):
                         fn(self, i, dt)
+        if self.model.emitter is not None:  # births after the families' rebuild point, where x_prev = x
+            with self.timed("emit"):
+                emit(self, state)
 
     def bond_forces(self, dt: float):
         """particle_force of every body from the current positions alone, without the materials' other hooks (no

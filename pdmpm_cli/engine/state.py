@@ -16,6 +16,7 @@ SCALARS = {
     "energy_prev": 0.0,  # kinetic + strain energy at the previous frame [J]
     "yield_residual": -1.0,  # largest f / psi_p after any return map so far (0: exactly on the surface)
     "bonds_cut": 0,  # bonds removed by fracture planes so far
+    "emitted": 0,  # layers an emitter has born so far (engine.emitter)
 }
 
 

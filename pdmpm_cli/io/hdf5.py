@@ -22,6 +22,11 @@ Layout (``format = "pdmpm-run"``, ``format_version = 1``)::
     /static/<name>          one dataset per field written once (particle_X, particle_mass, ...)
     /frames/time            (n_frames,) float64, simulation time of each frame
     /frames/<name>          (n_frames, *shape) one dataset per per-frame field (particle_x, ...)
+    /frames/particle_count  (n_frames,) int64, only in runs with an emitter: the particles of each frame. Their
+                            per-particle fields are then (n_frames, capacity, ...), the first count rows of a
+                            frame valid and the rest NaN (0 for integers); the static fields cover all capacity
+                            particles, of which a frame holds the first count. ``RunData.frame`` returns each
+                            frame at its count.
 
 Field names are ``<location>_<quantity>``. Frame datasets hold one frame per chunk (fields under
 64 KiB per frame, such as scalars, pack several frames per chunk; frames over 1 GiB are split
@@ -179,7 +184,9 @@ class Hdf5RunWriter:
         plan: dict,
         static: dict[str, np.ndarray],
         compression: str = "lzf",
+        capacity: int | None = None,
     ) -> None:
+        """capacity: the most particles a frame may hold (a run with an emitter), or None for a fixed count."""
         if compression not in COMPRESSIONS:
             raise ValueError(f"compression must be one of {COMPRESSIONS}, got {compression!r}")
         self.path = Path(path)
@@ -189,6 +196,8 @@ class Hdf5RunWriter:
         self._frames: dict[str, h5py.Dataset] = {}
         self._shapes: dict[str, tuple[int, ...]] = {}
         self._n_frames = 0
+        self._capacity = capacity
+        self._count: h5py.Dataset | None = None
         # Closed again right away: until the first frame the file is a clean, readable run with 0 frames.
         need = sum(np.asarray(v).nbytes for v in static.values()) + 4 * (len(scene_text) + len(json.dumps(plan)))
         with reserved_file(self.path, need) as f:
@@ -225,6 +234,8 @@ class Hdf5RunWriter:
         writer._frames = {name: group[name] for name in run.field_names}
         writer._shapes = {name: dataset.shape[1:] for name, dataset in writer._frames.items()}
         writer._n_frames = frames
+        writer._count = group["particle_count"] if COUNT in group else None
+        writer._capacity = writer._shapes["particle_x"][0] if writer._count is not None else None
         writer._file.swmr_mode = True
         return writer
 
@@ -265,9 +276,13 @@ class Hdf5RunWriter:
                     maxshape=(None, *array.shape),
                     dtype=array.dtype,
                     chunks=_frame_chunks(array.shape, array.dtype.itemsize),
+                    **({"fillvalue": _pad_value(array.dtype)} if self._capacity is not None else {}),
                     **_filter_options(self._compression, array.dtype),
                 )
                 self._shapes[name] = array.shape
+            if self._capacity is not None:
+                self._count = group.create_dataset(COUNT, shape=(0,), maxshape=(None,), dtype=np.int64,
+                                                   chunks=(1024,))
             f.swmr_mode = True
         except BaseException:
             _ABANDONED.extend([f, *self._frames.values()])
@@ -282,6 +297,12 @@ class Hdf5RunWriter:
         if index != self._n_frames:
             raise ValueError(f"frame index {index} out of order: expected {self._n_frames}")
         arrays = {name: np.asarray(value) for name, value in fields.items()}
+        count = len(arrays["particle_x"]) if "particle_x" in arrays else 0
+        if self._capacity is not None:
+            if count > self._capacity:
+                raise ValueError(f"frame {index} has {count} particles, more than the run's capacity {self._capacity}")
+            arrays = {name: _padded(a, self._capacity) if _per_particle(name, a, count) else a
+                      for name, a in arrays.items()}
         if self._file is None:
             if "time" in arrays:
                 raise ValueError("field name 'time' is reserved for frame times; use <location>_<quantity>")
@@ -303,6 +324,9 @@ class Hdf5RunWriter:
                 dataset = self._frames[name]
                 dataset.resize(n, axis=0)
                 dataset[index] = array
+            if self._count is not None:
+                self._count.resize(n, axis=0)
+                self._count[index] = count
             times = self._file["frames/time"]
             times.resize(n, axis=0)
             times[index] = time
@@ -380,6 +404,24 @@ def _corrupt(path: Path, error: BaseException) -> InputError:
     return InputError(f"{path}: cannot read the run file ({type(error).__name__}: {error}); {_CORRUPT_HINT}")
 
 
+COUNT = "particle_count"  # /frames dataset of a run with an emitter: the particles of each frame
+
+
+def _per_particle(name: str, array: np.ndarray, count: int) -> bool:
+    return name.startswith("particle_") and array.ndim > 0 and array.shape[0] == count
+
+
+def _pad_value(dtype: np.dtype):
+    return np.nan if np.issubdtype(dtype, np.floating) else 0
+
+
+def _padded(array: np.ndarray, capacity: int) -> np.ndarray:
+    """The per-particle array with rows past its count filled (NaN, or 0 for integers), `capacity` rows."""
+    out = np.full((capacity,) + array.shape[1:], _pad_value(array.dtype), dtype=array.dtype)
+    out[:len(array)] = array
+    return out
+
+
 class RunData:
     """A snapshot of a run file: header and static fields in memory, frames read on demand.
 
@@ -397,8 +439,10 @@ class RunData:
         times: np.ndarray,
         static: dict[str, np.ndarray],
         field_names: list[str],
+        counts: np.ndarray | None = None,
     ) -> None:
         self.path = path
+        self.counts = counts  # particles of each frame (a run with an emitter), or None: all, every frame
         self.scene_text = scene_text
         self.plan = plan
         self.attrs = attrs
@@ -420,12 +464,18 @@ class RunData:
         i %= n
         with _open(self.path) as f:
             try:
-                return {name: f["frames"][name][i] for name in self.field_names}
+                frame = {name: f["frames"][name][i] for name in self.field_names}
             except (OSError, KeyError, ValueError) as error:
                 raise _corrupt(self.path, error) from error
+        if self.counts is not None:
+            capacity, count = len(frame["particle_x"]), int(self.counts[i])
+            frame = {name: a[:count] if name.startswith("particle_") and a.ndim and len(a) == capacity else a
+                     for name, a in frame.items()}
+        return frame
 
     def field(self, name: str) -> np.ndarray:
-        """The history of one per-frame field over the complete frames, shape (n_frames, ...)."""
+        """The history of one per-frame field over the complete frames, shape (n_frames, ...); with an emitter,
+        (n_frames, capacity, ...) with NaN (0) past each frame's count (`counts`)."""
         if name not in self.field_names:
             raise KeyError(f"{self.path}: no per-frame field {name!r}; available: {self.field_names}")
         with _open(self.path) as f:
@@ -456,13 +506,14 @@ def read_run(path: str | os.PathLike[str]) -> RunData:
             plan = json.loads(f["plan_json"].asstr()[()])
             static = {name: dataset[()] for name, dataset in f["static"].items()}
             frames = f["frames"]
-            field_names = sorted(name for name in frames if name != "time")
+            field_names = sorted(name for name in frames if name not in ("time", COUNT))
             n = min(
                 int(attrs.get("frames_complete", 0)),
                 frames["time"].shape[0],
                 *(frames[name].shape[0] for name in field_names),
             )
             times = frames["time"][:n]
+            counts = frames[COUNT][:n] if COUNT in frames else None
         except InputError:
             raise
         except (OSError, KeyError, ValueError, TypeError, AttributeError) as error:
@@ -475,4 +526,5 @@ def read_run(path: str | os.PathLike[str]) -> RunData:
         times=times,
         static=static,
         field_names=field_names,
+        counts=counts,
     )

@@ -72,8 +72,9 @@ class FluidSurfaces:
 
     def at(self, index: int, x: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         if index != self._index:
-            self._surfaces = [triangles_of(fluid_surface(x[b.start:b.end], b.volume, b.spacing))
-                              for b in self.bodies]
+            # x[start:end] is a prefix of the range while an emitter is still bearing the body's particles
+            self._surfaces = [triangles_of(fluid_surface(x[b.start:b.end], b.volume[:max(0, len(x) - b.start)],
+                                                         b.spacing)) for b in self.bodies]
             self._index = index
         return self._surfaces
 

@@ -32,8 +32,9 @@ def _point_data(fields: dict[str, np.ndarray], n: int) -> dict[str, np.ndarray]:
     out: dict[str, np.ndarray] = {}
     for name, value in fields.items():
         array = np.asarray(value)
-        if name == POSITION_FIELD or not name.startswith("particle_") or array.ndim == 0 or array.shape[0] != n:
+        if name == POSITION_FIELD or not name.startswith("particle_") or array.ndim == 0 or array.shape[0] < n:
             continue
+        array = array[:n]  # static fields cover every particle an emitter will bear; a frame holds the first n
         if array.dtype == np.bool_:
             array = array.astype(np.uint8)
         if array.ndim > 2:

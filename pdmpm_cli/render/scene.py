@@ -115,10 +115,16 @@ class _Layer:
     shown: pv.PolyData | None = None
 
 
+def present(idx: np.ndarray, frame: Frame) -> np.ndarray:
+    """The body's particles this frame holds: with an emitter, a frame has the first of the run's particles."""
+    return idx[:np.searchsorted(idx, len(frame.x))]
+
+
 def _spheres(idx: np.ndarray, radius: float) -> _Layer:
     def build(frame: Frame, values: np.ndarray) -> pv.PolyData:
-        cloud = pv.PolyData(frame.x[idx])
-        cloud.point_data["value"] = values[idx]
+        idx_now = present(idx, frame)
+        cloud = pv.PolyData(frame.x[idx_now])
+        cloud.point_data["value"] = values[idx_now]
         return cloud
 
     return _Layer(build, dict(style="points", render_points_as_spheres=True), sphere_radius=radius)
@@ -139,11 +145,12 @@ def _mesh(part: MeshPart, k: int) -> _Layer:
 
 def _fluid(idx: np.ndarray, volume: np.ndarray, spacing: float) -> _Layer:
     def build(frame: Frame, values: np.ndarray) -> pv.PolyData:
-        x = frame.x[idx]
-        surface = fluid_surface(x, volume, spacing)
+        idx_now = present(idx, frame)
+        x = frame.x[idx_now]
+        surface = fluid_surface(x, volume[:len(idx_now)], spacing)
         if surface.n_points:  # the mean of a few neighbours: single particles' values would look blotchy
             near = nearest(x, surface.points, k=8).reshape(surface.n_points, -1)
-            surface.point_data["value"] = values[idx][near].mean(axis=1)
+            surface.point_data["value"] = values[idx_now][near].mean(axis=1)
         return surface
 
     return _Layer(build, dict(interpolation="phong", specular=0.4))

@@ -136,9 +136,11 @@ def _vtk_source(folder: Path) -> RunSource:
     entries = _pvd_entries(folder / "vtk" / "particles.pvd")
     first = meshio.read(entries[0][2])
     x0, data = first.points, first.point_data
-    body, volume = data["particle_body"].astype(int), data["particle_volume"]
+    # With an emitter the last frame holds the most particles, and every frame a prefix of them
+    last = meshio.read(entries[-1][2]).point_data if len(entries) > 1 else data
+    body, volume = last["particle_body"].astype(int), last["particle_volume"]
     plys = _ply_series(folder / "meshes", entries[0][1])
-    meshes = [_ply_mesh(name, path, x0, body) for name, path in plys]
+    meshes = [_ply_mesh(name, path, x0, body[:len(x0)]) for name, path in plys]
     names = {m.body: m.name for m in meshes}
     bodies = [BodyInfo(names.get(b, f"body {b}"), "elastic", float(np.median(volume[body == b]) ** (1 / 3)))
               for b in range(body.max() + 1)]

@@ -267,6 +267,31 @@ class Pin(Strict):
         return self
 
 
+class Emitter(Strict):
+    """Particles born over time from a nozzle (a liquid poured from a bottle's neck). The lattice points of the body's
+    spacing h inside `shape` form one layer of N particles of volume h^3; a layer is born every N h^3 / rate seconds
+    from `start` to `stop`, so the emitted volume is rate x time by construction. The layer must clear the nozzle
+    before the next one is born: rate at most N h^3 |v| / T, T the layer's thickness along the velocity (a disc one
+    spacing thick: rate <= N h^2 |v|, the nozzle's area times the speed)."""
+
+    shape: Shape = Field(description="Nozzle region, e.g. a cylinder one spacing high across the stream: the body's "
+                         "lattice points inside it form one layer of born particles.")
+    velocity: Vec3 = Field(description="Velocity of the born particles, out of the nozzle [m/s].")
+    rate: float = Field(gt=0, description="Volume emitted per second [m^3/s].")
+    start: float = Field(0.0, ge=0, description="Time of the first layer [s].")
+    stop: float | None = Field(None, gt=0, description="No layer is born after this time [s]; absent: the end of "
+                               "the run.")
+
+    @model_validator(mode="after")
+    def _leaves(self):
+        if math.hypot(*self.velocity) == 0.0:
+            raise ValueError("velocity is zero: born particles would never leave the nozzle; give the stream's "
+                             "velocity out of it [m/s]")
+        if self.stop is not None and self.stop <= self.start:
+            raise ValueError(f"stop ({self.stop:g} s) must be after start ({self.start:g} s)")
+        return self
+
+
 class Body(Strict):
     name: str = Field(description="Name of the body, used in messages and outputs.")
     geometry: Geometry
@@ -278,6 +303,16 @@ class Body(Strict):
     pins: list[Pin] = Field(default_factory=list, description="Regions of held particles.")
     fracture: Fracture | None = Field(
         None, description="Fracture thresholds; absent: bonds never break (no damage arrays or fracture pass).")
+    emitter: Emitter | None = Field(
+        None, description="Particles born over time from a nozzle, joining this body (viscoelastic cloud bodies); "
+        "absent: the body keeps its initial particles.")
+
+    @model_validator(mode="after")
+    def _emitting_liquid(self):
+        if self.emitter is not None and self.material.model != "viscoelastic":
+            raise ValueError("an emitter needs a viscoelastic body, whose families are rebuilt as particles arrive; "
+                             f"this body is {self.material.model}")
+        return self
 
     @model_validator(mode="after")
     def _viscoelastic_cloud(self):
@@ -582,6 +617,17 @@ class Scene(Strict):
         if errors:
             raise ValidationError.from_exception_data(cls.__name__, errors)
         return contact
+
+    @model_validator(mode="after")
+    def _emitter_last(self):
+        """Born particles are appended to the arrays, so the emitting body's range stays contiguous only if it is
+        the last body."""
+        emitting = [i for i, b in enumerate(self.bodies) if b.emitter is not None]
+        if emitting and emitting != [len(self.bodies) - 1]:
+            raise ValueError(f"only the last body may have an emitter (born particles are appended after every other "
+                             f"particle); move body '{self.bodies[emitting[0]].name}' to the end of the list, and "
+                             f"give at most one body an emitter")
+        return self
 
     @model_validator(mode="after")
     def _unique_names(self):

@@ -14,8 +14,13 @@ class Sim:
     def __init__(self, scene_dict: dict, path=Path("scene.yaml")):
         self.scene = Scene.model_validate(scene_dict)
         self.prep = prepare_scene(self.scene, Path(path))
-        self.model, self.plan = self.prep.model, self.prep.plan
+        self.plan = self.prep.plan
         self.state, self.solver = start_in_memory(self.prep)
+
+    @property
+    def model(self):
+        """The solver's Model: an emitter grows it as particles are born."""
+        return self.solver.model
 
     def advance(self, t_end, on_substep=None):
         """Advance to t_end frame by frame, as the runner does (the blow-up check runs at every frame)."""

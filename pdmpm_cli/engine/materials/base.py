@@ -30,6 +30,8 @@ class MaterialKind:
     before_forces: Callable | None = None  # e.g. the plastic return map
     after_forces: Callable | None = None  # e.g. rebuilding the families of a flowing body
     start: Callable | None = None  # (solver, body): initial values of its arrays, on the host State
+    born: Callable | None = None  # (solver, state, body, first): values of particles first.. an emitter just
+    # appended (families with their neighbours), on the host State; None: the material cannot be emitted
     outputs: dict[str, Callable] = field(default_factory=dict)  # frame field name -> fn(model, state) -> array
     uses_fbar: Callable[[Any], bool] = lambda params: False  # whether its forces read Fbar (eq. 4)
     with_flow_speed: Callable[[Any, float], Any] | None = None  # (params, largest expected flow speed [m/s]) ->

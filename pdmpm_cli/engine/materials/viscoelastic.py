@@ -368,16 +368,29 @@ def families(solver, body: int, dt: float):
     carried = tuple(state.bond_arrays())
     with solver.backend.on_host(state, ("particle_x", "bond_start", "bond_nbr", "particle_m", "particle_x_rebuild")
                                 + carried):
-        state.bond_start, state.bond_nbr, arrays = rebuild_families(
-            state.particle_x, state.bond_start, state.bond_nbr, state.bond_arrays(), [(b.start, b.end, b.horizon)])
-        for name, array in arrays.items():
-            setattr(state, name, array)
-        if state.has("bond_active"):  # bonds of a viscoelastic body never count as fracture damage
-            state.bond_active[state.bond_start[b.start]:state.bond_start[b.end]] = 1
-        model = solver.model
-        lps_weighted_volume(b.start, b.end, b.horizon, model.particle_volume, state.bond_start, state.bond_nbr,
-                            state.bond_len0, state.particle_m)
-        state.particle_x_rebuild[b.start:b.end] = state.particle_x[b.start:b.end]
+        rebuild(solver, state, b)
+
+
+def rebuild(solver, state, b):
+    """Body b's families rebuilt from current neighbours on the host State, with m_p and the rebuild positions."""
+    state.bond_start, state.bond_nbr, arrays = rebuild_families(
+        state.particle_x, state.bond_start, state.bond_nbr, state.bond_arrays(), [(b.start, b.end, b.horizon)])
+    for name, array in arrays.items():
+        setattr(state, name, array)
+    if state.has("bond_active"):  # bonds of a viscoelastic body never count as fracture damage
+        state.bond_active[state.bond_start[b.start]:state.bond_start[b.end]] = 1
+    lps_weighted_volume(b.start, b.end, b.horizon, solver.model.particle_volume, state.bond_start, state.bond_nbr,
+                        state.bond_len0, state.particle_m)
+    state.particle_x_rebuild[b.start:b.end] = state.particle_x[b.start:b.end]
+
+
+def born(solver, state, body: int, first: int):
+    """Particles first.. just appended by an emitter (engine.emitter; J = 1 by its fill): the previous positions
+    their own, then the body's families rebuilt, so their bonds form at the current lengths with zero force. Births
+    run after the force hooks, where particle_x_prev = particle_x for every other particle too."""
+    b = solver.model.bodies[body]
+    state.particle_x_prev[first:b.end] = state.particle_x[first:b.end]
+    rebuild(solver, state, b)
 
 
 def volume_pressure(solver, body: int, dt: float):
@@ -419,7 +432,7 @@ def volume_ratio(model, state) -> np.ndarray:
 
 KIND = MaterialKind(
     name="viscoelastic", schema=Schema, params=params, forces=bonds, constants=constants, energy=energy,
-    before_forces=volume_pressure, after_forces=families, start=init_state, with_flow_speed=with_flow_speed,
+    before_forces=volume_pressure, after_forces=families, start=init_state, born=born, with_flow_speed=with_flow_speed,
     outputs={"particle_J": volume_ratio},
     fields=(
         Field("particle_J", PARTICLE, fill=1.0, doc="volume ratio J = V / V0 from the grid velocity divergence [-]"),
