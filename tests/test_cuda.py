@@ -105,6 +105,13 @@ def test_two_bodies_in_contact_alike(compared):
     assert_same(row)
 
 
+@pytest.mark.parametrize("case", ["flip_pins", "flip_contact"])
+def test_flip_share_alike(compared, case):
+    row = compared[case]
+    assert row["phases"][-2:] == ["g2p", "remap"]
+    assert_same(row)
+
+
 def test_viscoelastic_splat_rebuilds_alike(compared):
     row = compared["viscous_splat"]
     assert "families:viscoelastic" in row["phases"] and row["rebuilt"]
