@@ -384,7 +384,7 @@ class Simulation(Strict):
                     "the grid's, which filters them at every transfer and damps elastic motion. Above 0: the grid's "
                     "plus this share of what the particle carried and the grid did not (Fei et al. 2021), and "
                     "particles move with their new velocities mapped back to the grid (MUSL, one more transfer per "
-                    "step, about a third more time); 1 keeps the energy of elastic motion, with more particle-level "
+                    "step, about half again the time); 1 keeps the energy of elastic motion, with more particle-level "
                     "noise. docs/method.md, 'Transfers', has the measurements."
     )
     backend: Literal["cpu", "cuda"] = Field(
