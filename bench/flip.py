@@ -39,7 +39,11 @@ def bar(flip: float):
     e0 = energy(sim)
     t, v = [0.0], [sim.momentum()[0] / mass]
     t0 = time.perf_counter()
-    sim.advance(20.0, lambda s, dt: (t.append(s.time), v.append(sim.momentum()[0] / mass)))
+    def record(st, dt):
+        t.append(st.time)
+        v.append(sim.momentum()[0] / mass)
+
+    sim.advance(20.0, record)
     t, v = np.array(t), np.array(v)
     amp = [np.abs(v[(t >= a) & (t < a + 10.0)]).max() for a in (0.0, 10.0)]
     print(f"| {flip:g} | {period(t, v):.4f} | {amp[0]:.5f} | {100 * (1 - amp[1] / amp[0]):.2f} % | "
@@ -58,7 +62,11 @@ def free(flip: float, sampling: str, walls: bool):
     end = x > BAR_LENGTH - 2 * sim.model.dx
     e0 = energy(sim)
     t, v = [0.0], [float(m[end] @ s.particle_v[end, 0] / m[end].sum())]
-    sim.advance(20.0, lambda st, dt: (t.append(st.time), v.append(float(m[end] @ st.particle_v[end, 0] / m[end].sum()))))
+    def record(st, dt):
+        t.append(st.time)
+        v.append(float(m[end] @ st.particle_v[end, 0] / m[end].sum()))
+
+    sim.advance(20.0, record)
     t, v = np.array(t), np.array(v)
     amp = [np.abs(v[(t >= a) & (t < a + 5.0)]).max() for a in (0.0, 5.0, 10.0, 15.0)]
     decay = ", ".join(f"{100 * (1 - b / a):.1f}" for a, b in zip(amp, amp[1:]))
