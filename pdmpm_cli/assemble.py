@@ -163,5 +163,5 @@ def build_model(scene: Scene, disc: Discretization) -> Model:
         wind_drag=scene.wind.drag if scene.wind else 0.0,
         origin=lo, dx=g.cell_size, grid_shape=tuple(int(c) + 1 for c in cells),
         wall_boundary=BOUNDARY_CODES[g.boundary], wall_friction=g.friction,
-        contact_friction=contact_friction(scene),
+        contact_friction=contact_friction(scene), flip=scene.simulation.flip,
     )

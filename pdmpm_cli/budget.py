@@ -30,6 +30,7 @@ STEP_PER_PARTICLE = 800
 STEP_PER_PARTICLE_THREAD = 24  # per-thread force arrays of the elastic pair pass
 STEP_PER_BOND = 40
 GRID_NODE = 4 * 8  # mass and momentum, float64, once per grid plus once per thread
+FLIP_NODE = 7 * 8  # with a FLIP share (simulation.flip > 0): the impulse / the velocity before the update too
 VORONOI_BONDS = 16  # face neighbours of a random Voronoi cell (about 15.5)
 TINY_BODY = 32  # fewer particles than this: warned
 OUTPUT_WARNING = 2 << 30  # planned output above this many bytes: warned
@@ -50,6 +51,7 @@ class Estimate:
     bodies: tuple[BodyCount, ...]
     grid_nodes: float
     threads: int
+    node_bytes: int = GRID_NODE
 
     @property
     def particles(self) -> float:
@@ -61,7 +63,7 @@ class Estimate:
 
     @property
     def grid_bytes(self) -> float:
-        return self.grid_nodes * GRID_NODE * (1 + self.threads)
+        return self.grid_nodes * self.node_bytes * (1 + self.threads)
 
     @property
     def memory_bytes(self) -> float:
@@ -147,7 +149,7 @@ def estimate(scene, base_dir: Path, threads: int | None = None) -> Estimate:
     dx = scene.grid.cell_size
     nodes = math.prod(round((b - a) / dx) + 1 for a, b in zip(scene.grid.domain.min, scene.grid.domain.max))
     bodies = tuple(_body(i, b, dx, base_dir, scene.simulation.duration) for i, b in enumerate(scene.bodies))
-    return Estimate(bodies, float(nodes), threads)
+    return Estimate(bodies, float(nodes), threads, FLIP_NODE if scene.simulation.flip > 0 else GRID_NODE)
 
 
 def available_memory() -> int | None:

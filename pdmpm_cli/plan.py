@@ -18,6 +18,7 @@ from pdmpm_cli.engine.materials import MATERIALS
 from pdmpm_cli.engine.model import Model
 from pdmpm_cli.engine.plan import BodyPlan, Plan
 from pdmpm_cli.engine.state import shape_of
+from pdmpm_cli.engine.transfer import CHANNELS, FLIP_CHANNELS
 from pdmpm_cli.errors import InputError
 from pdmpm_cli.scene.schema import Scene
 
@@ -47,10 +48,11 @@ def state_fields(model: Model, backend: str) -> tuple[F.Field, ...]:
 def array_shapes(declared, model: Model, n_bonds: int, threads: int) -> dict:
     """name -> (shape, dtype) of the declared arrays: per particle, per bond, or on the grid."""
     n, nodes = model.n_particles, tuple(model.grid_shape)
+    q = FLIP_CHANNELS if model.flip > 0.0 else CHANNELS
     grid = {
-        "grid": nodes + (4,),
-        "grid_private": (threads,) + nodes + (4,),  # per-thread P2G grids keep the CPU race-free (GPU: atomics)
-        "grid_field": (len(model.bodies),) + nodes + (4,),
+        "grid": nodes + (q,),
+        "grid_private": (threads,) + nodes + (q,),  # per-thread P2G grids keep the CPU race-free (GPU: atomics)
+        "grid_field": (len(model.bodies),) + nodes + (q,),
         "grid_surface": (len(model.bodies),) + nodes + (SURFACE,),
         "grid_surface_private": (threads,) + nodes + (SURFACE,),
         "particle_force_private": (threads, n, 3),  # per-thread pair-force arrays (CPU)
@@ -100,8 +102,9 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
         phases.append("emit")
     # Crack particles meet the grid's material after its update and before intact particles read it back.
     contact = len(model.contact_friction) > 0
+    remap = model.flip > 0.0
     phases += ["p2g", "grid_update", *(["contact"] if contact else []), *(["crack"] if fracture else []), "g2p",
-               *(["fracture"] if fracture else [])]
+               *(["remap"] if remap else []), *(["fracture"] if fracture else [])]
     threads = numba.get_num_threads() if sim.backend == "cpu" else 0
     n, nb = disc.n_particles, disc.n_bonds
     fields = array_shapes(state_fields(model, sim.backend), model, nb, threads)
@@ -125,5 +128,5 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
         frames=max(1, int(round(sim.duration * sim.fps))), frame_dt=frame_dt, dt_user=sim.dt,
         dt_cfl=dt_cfl, dt_bond=dt_bond, dt_max=dt_max, binding=binding, dt_reduced=reduced, wave_speed=wave,
         memory_bytes=memory, notes=tuple(disc.notes), backend=sim.backend, fbar=need_fbar, fracture=fracture,
-        contact=contact, emitted=emitted,
+        contact=contact, remap=remap, emitted=emitted,
     )

@@ -79,6 +79,10 @@ SYNTHETIC = {
                            colliders=[{"type": "mesh", "path": "ball.off", "translate": [0.52, 0.5, 0.5],
                                        "velocity": [0.0, -1.0, 0.0], "boundary": "slip", "friction": 0.3}]),
 }
+# The FLIP share with MUSL's position pass (simulation.flip): the pinned bar among colliders in the wind, and the
+# two bodies in contact (the remap's contact pass)
+SYNTHETIC["flip_pins"] = {**SYNTHETIC["collider_pins"], "simulation": {"duration": 1.0, "fps": 10, "flip": 0.95}}
+SYNTHETIC["flip_contact"] = {**SYNTHETIC["two_bodies"], "simulation": {"duration": 1.0, "fps": 10, "flip": 0.95}}
 
 # Every bundled scene at a tiny resolution: its materials, geometry modes, pins, colliders and fracture as shipped.
 SHELL = ("grid.cell_size=0.05", "bodies.0.geometry.spacing=0.05", "bodies.0.geometry.layers=1",

@@ -99,6 +99,13 @@ def test_two_bodies_in_contact_alike(compared):
     assert_same(row)
 
 
+@pytest.mark.parametrize("case", ["flip_pins", "flip_contact"])
+def test_flip_share_alike(compared, case):
+    row = compared[case]
+    assert row["phases"][-2:] == ["g2p", "remap"]
+    assert_same(row)
+
+
 def test_viscoelastic_splat_rebuilds_alike(compared):
     row = compared["viscous_splat"]
     assert "families:viscoelastic" in row["phases"] and row["rebuilt"]
@@ -129,7 +136,7 @@ def test_kernels_compile_for_an_h100():
                         "incremental_dilatation_at", "viscoelastic_force_at", "volume_pressure_at", "copy_row_at",
                         "zero_box", "p2g_kernel", "grid_update_kernel", "reset_stats", "g2p_kernel",
                         "crack_contact_kernel", "crack_update_kernel", "criterion_at", "zero_cells", "count_cells",
-                        "cell_fraction", "surface_kernel", "contact_kernel"}
+                        "cell_fraction", "surface_kernel", "contact_kernel", "advect_kernel"}
 
 
 TINY = textwrap.dedent("""\

@@ -60,6 +60,7 @@ class Model:
     contact_friction: np.ndarray  # (bodies, bodies) Coulomb coefficients of contact between bodies [-]; (0, 0):
     # the bodies share one grid field (one body, or contact mode shared)
     emitter: Any = None  # engine.emitter.Emitter of the last body, or None
+    flip: float = 0.0  # FLIP share of the G2P update [-]; 0: APIC alone, > 0: FLIP grid and MUSL (transfer.advect_at)
 
     @property
     def final(self) -> Model:

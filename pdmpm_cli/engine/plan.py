@@ -1,6 +1,6 @@
 """What a run will do and allocate, decided once before any step (pdmpm_cli.plan.make_plan decides it from a scene).
 
-The Solver reads the switches (`fbar`, `fracture`, `contact`) and never tests a material's type: a step a scene does not
+The Solver reads the switches (`fbar`, `fracture`, `contact`, `remap`) and never tests a material's type: a step a scene does not
 need is absent. `phases` lists the step's phases for people (`pdmpm validate --explain`, run.h5)."""
 
 from dataclasses import asdict, dataclass
@@ -44,6 +44,7 @@ class Plan:
     fbar: bool = False  # some body's forces read Fbar (eq. 4)
     fracture: bool = False  # some body can fracture (section 6): crack particles and the fracture pass
     contact: bool = False  # one grid field per body and the contact pass between them (engine/contact.py)
+    remap: bool = False  # a FLIP share: FLIP grid channels and MUSL's position pass (engine/transfer.py: advect_at)
     emitted: int = 0  # particles an emitter bears over the run (engine.emitter), after the initial `particles`: the
     # layers due before the end (one due within the last step's span is not born, so this bounds the count)
 

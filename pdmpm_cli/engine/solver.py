@@ -1,9 +1,9 @@
 """Explicit MPM step with peridynamic bond forces (paper section 3) and the frame loop around it.
 
 The step reads top to bottom as the paper's loop: bond forces (eq. 4, then each body's material), P2G, the grid
-update, contact between bodies (ours: engine/contact.py), the crack particles' own integrator and G2P, then
-fracture. A part a scene does not need is skipped by a switch the Plan set once (`plan.fbar`, `plan.fracture`,
-`plan.contact`); materials are called through their registry entries,
+update, contact between bodies (ours: engine/contact.py), the crack particles' own integrator and G2P, with a FLIP
+share MUSL's position pass (ours: engine/transfer.py, advect_at), then fracture. A part a scene does not need is skipped by a switch the Plan set once (`plan.fbar`, `plan.fracture`,
+`plan.contact`, `plan.remap`); materials are called through their registry entries,
 never by type. The backend (engine/backends) runs each part on the CPU or the GPU."""
 
 import time
@@ -118,6 +118,11 @@ class Solver:
             vmax, bad = self.backend.g2p(self, state, dt)
             if bad:
                 self.fail_nonfinite(state)
+        if self.plan.remap:
+            with self.timed("remap"):
+                vmax, bad = self.backend.remap(self, state, dt)
+                if bad:
+                    self.fail_nonfinite(state)
         state.vmax = max(vmax, crack_vmax)
         if self.plan.fracture:
             with self.timed("fracture"):

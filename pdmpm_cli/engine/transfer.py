@@ -16,6 +16,8 @@ from pdmpm_cli.engine.bspline import cubic_weights, cubic_weights_grad
 from pdmpm_cli.engine.colliders import collide_all, push_out, respond
 
 WALL = 3  # nodes within this many cells of the domain edge act as walls; particles stay >= 1 cell inside
+CHANNELS = 4  # a grid node: mass, then momentum (P2G) / velocity (after the grid update)
+FLIP_CHANNELS = 7  # with a FLIP share: then the force impulse (P2G) / the velocity before the update, v_I^n
 
 
 @njit(cache=True, inline="always")
@@ -63,6 +65,14 @@ def scatter_node(g, i, j, k, m, p0, p1, p2):
     g[i, j, k, 3] += p2
 
 
+@njit(cache=True, inline="always")
+def scatter_impulse(g, i, j, k, f0, f1, f2):
+    """g[i, j, k, 4:7] += dt f (a FLIP grid keeps the force out of the momentum); atomic adds on the GPU."""
+    g[i, j, k, 4] += f0
+    g[i, j, k, 5] += f1
+    g[i, j, k, 6] += f2
+
+
 @njit(cache=True)
 def position_bounds(particle_x):
     """Per-axis smallest and largest particle position, (lo, hi): the extent the P2G node box covers. One serial pass
@@ -84,7 +94,8 @@ def position_bounds(particle_x):
 def p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt, origin,
            inv_dx, g, wx, wy, wz):
     """P2G of particle p: mass, APIC momentum and dt * bond force (eq. 7: f_I = sum_p N_I(x_p) f_p) -> g.
-    Returns 1 if its stencil is off the grid (it then scatters nothing), else 0.
+    Returns 1 if its stencil is off the grid (it then scatters nothing), else 0. On a FLIP grid (FLIP_CHANNELS)
+    the impulse goes to its own channels, so that the grid update can keep the velocity before it, v_I^n.
 
     Crack-surface particles (particle_crack = 1; the array is empty without fracture) stay off the grid:
     they have their own integrator (section 6). Pinned particles bring their prescribed momentum but not their
@@ -97,11 +108,13 @@ def p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force,
     dx = 1.0 / inv_dx
     m = particle_mass[p]
     fdt = 0.0 if pin_mask.shape[0] > 0 and pin_mask[p] != 0 else dt
+    flip = g.shape[3] > CHANNELS
+    mdt = 0.0 if flip else fdt  # the impulse in the momentum channels, or (FLIP) in its own
     # Node momentum m (v + C (x_i - x_p)) + dt f, built up axis by axis: the affine part of axis 0 is added once
     # per i, of axis 1 once per j, so the innermost loop does four multiply-adds per node.
-    p0 = m * particle_v[p, 0] + fdt * particle_force[p, 0]
-    p1 = m * particle_v[p, 1] + fdt * particle_force[p, 1]
-    p2 = m * particle_v[p, 2] + fdt * particle_force[p, 2]
+    p0 = m * particle_v[p, 0] + mdt * particle_force[p, 0]
+    p1 = m * particle_v[p, 1] + mdt * particle_force[p, 1]
+    p2 = m * particle_v[p, 2] + mdt * particle_force[p, 2]
     c00, c01, c02 = m * particle_C[p, 0, 0], m * particle_C[p, 0, 1], m * particle_C[p, 0, 2]
     c10, c11, c12 = m * particle_C[p, 1, 0], m * particle_C[p, 1, 1], m * particle_C[p, 1, 2]
     c20, c21, c22 = m * particle_C[p, 2, 0], m * particle_C[p, 2, 1], m * particle_C[p, 2, 2]
@@ -117,6 +130,14 @@ def p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force,
                 w = wij * wz[k]
                 scatter_node(g, bx + i, by + j, bz + k, w * m, w * (r0 + c02 * d2), w * (r1 + c12 * d2),
                              w * (r2 + c22 * d2))
+    if flip and fdt != 0.0:
+        f0, f1, f2 = fdt * particle_force[p, 0], fdt * particle_force[p, 1], fdt * particle_force[p, 2]
+        for i in range(4):
+            for j in range(4):
+                wij = wx[i] * wy[j]
+                for k in range(4):
+                    w = wij * wz[k]
+                    scatter_impulse(g, bx + i, by + j, bz + k, w * f0, w * f1, w * f2)
     return 0
 
 
@@ -134,7 +155,7 @@ def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, parti
         for i in range(box[0], box[1]):
             for j in range(box[2], box[3]):
                 for k in range(box[4], box[5]):
-                    for q in range(4):
+                    for q in range(g.shape[3]):
                         g[i, j, k, q] = 0.0
         wx = np.empty(4)
         wy = np.empty(4)
@@ -145,7 +166,7 @@ def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, parti
     for i in prange(box[0], box[1]):
         for j in range(box[2], box[3]):
             for k in range(box[4], box[5]):
-                for q in range(4):
+                for q in range(grid.shape[3]):
                     s = 0.0
                     for t in range(nt):
                         s += grid_private[t, i, j, k, q]
@@ -157,11 +178,17 @@ def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, parti
 def grid_node_update(i, j, k, grid, dt, gravity, wind, drag, origin, dx, t_new, colliders, wall_boundary,
                      wall_friction, v, nrm):
     """Node (i, j, k): momentum -> velocity, v_I += dt g (step 3) and the wind's drag towards `wind` at rate
-    `drag` (implicit, stable for any dt), domain walls and colliders (step 4); in place."""
+    `drag` (implicit, stable for any dt), domain walls and colliders (step 4); in place. A FLIP grid keeps the
+    velocity before all of it, v_I^n, in channels 4-6 (g2p_at's FLIP share reads it)."""
     m = grid[i, j, k, 0]
     if m <= 0.0:
         return
     relax = 1.0 / (1.0 + dt * drag)
+    if grid.shape[3] > CHANNELS:
+        for a in range(3):
+            impulse = grid[i, j, k, 4 + a]
+            grid[i, j, k, 4 + a] = grid[i, j, k, 1 + a] / m
+            grid[i, j, k, 1 + a] += impulse
     for a in range(3):
         v[a] = (grid[i, j, k, 1 + a] / m + dt * (gravity[a] + drag * wind[a])) * relax
     for a in range(3):
@@ -201,10 +228,15 @@ def pin_share(stop, t_new, dt):
 
 
 @njit(cache=True, inline="always")
-def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, particle_crack,
+def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip, particle_crack,
            particle_x, particle_v, particle_C, wx, wy, wz, v, nrm):
     """G2P of particle p: velocity and APIC affine matrix (step 5), pins, particle collisions (step 6), advection.
-    Returns its speed, -1 when it is not finite, 0 for a crack-surface particle (left to its own integrator)."""
+    Returns its speed, -1 when it is not finite, 0 for a crack-surface particle (left to its own integrator).
+
+    On a FLIP grid (FLIP_CHANNELS) the new velocity and affine matrix are the grid's plus the share `flip` of what
+    the particle carried and the grid did not, (v_p, C_p) - G2P(v_I^n) (Fei et al. 2021, eq. 9, applied to the
+    affine matrix too: APIC's transfers are those of PIC for the pair (v, C) under the mass m_p diag(1, D_p)), and
+    the particle does not move here: `advect_at` moves it with the re-mapped velocity (MUSL)."""
     if particle_crack.shape[0] > 0 and particle_crack[p] != 0:
         return 0.0
     dx = 1.0 / inv_dx
@@ -259,6 +291,46 @@ def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity
         b12 += w * z1
         b22 += w * z2
     pinned = pin_mask.shape[0] > 0 and pin_mask[p] != 0
+    remapped = grid.shape[3] > CHANNELS
+    if remapped and not pinned:
+        o0 = o1 = o2 = 0.0
+        a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
+        for i in range(4):
+            d0 = (bx + i - fx) * dx
+            for j in range(4):
+                d1 = (by + j - fy) * dx
+                wij = wx[i] * wy[j]
+                for k in range(4):
+                    d2 = (bz + k - fz) * dx
+                    w = wij * wz[k]
+                    u0 = w * grid[bx + i, by + j, bz + k, 4]
+                    u1 = w * grid[bx + i, by + j, bz + k, 5]
+                    u2 = w * grid[bx + i, by + j, bz + k, 6]
+                    o0 += u0
+                    o1 += u1
+                    o2 += u2
+                    a00 += u0 * d0
+                    a01 += u0 * d1
+                    a02 += u0 * d2
+                    a10 += u1 * d0
+                    a11 += u1 * d1
+                    a12 += u1 * d2
+                    a20 += u2 * d0
+                    a21 += u2 * d1
+                    a22 += u2 * d2
+        v0 += flip * (particle_v[p, 0] - o0)
+        v1 += flip * (particle_v[p, 1] - o1)
+        v2 += flip * (particle_v[p, 2] - o2)
+        g = flip / scale
+        b00 += g * (particle_C[p, 0, 0] - a00 * scale)
+        b01 += g * (particle_C[p, 0, 1] - a01 * scale)
+        b02 += g * (particle_C[p, 0, 2] - a02 * scale)
+        b10 += g * (particle_C[p, 1, 0] - a10 * scale)
+        b11 += g * (particle_C[p, 1, 1] - a11 * scale)
+        b12 += g * (particle_C[p, 1, 2] - a12 * scale)
+        b20 += g * (particle_C[p, 2, 0] - a20 * scale)
+        b21 += g * (particle_C[p, 2, 1] - a21 * scale)
+        b22 += g * (particle_C[p, 2, 2] - a22 * scale)
     if pinned:
         share = pin_share(pin_stop[p], t_new, dt)
         v0, v1, v2 = share * pin_velocity[p, 0], share * pin_velocity[p, 1], share * pin_velocity[p, 2]
@@ -268,20 +340,22 @@ def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity
         collide_all(colliders, particle_x[p, 0], particle_x[p, 1], particle_x[p, 2], t_new, v, nrm)
         v0, v1, v2 = v[0], v[1], v[2]
     particle_v[p, 0], particle_v[p, 1], particle_v[p, 2] = v0, v1, v2
-    particle_x[p, 0] += dt * v0
-    particle_x[p, 1] += dt * v1
-    particle_x[p, 2] += dt * v2
     particle_C[p, 0, 0], particle_C[p, 0, 1], particle_C[p, 0, 2] = b00 * scale, b01 * scale, b02 * scale
     particle_C[p, 1, 0], particle_C[p, 1, 1], particle_C[p, 1, 2] = b10 * scale, b11 * scale, b12 * scale
     particle_C[p, 2, 0], particle_C[p, 2, 1], particle_C[p, 2, 2] = b20 * scale, b21 * scale, b22 * scale
+    if remapped:
+        return particle_speed(v0, v1, v2, particle_x, p)
+    particle_x[p, 0] += dt * v0
+    particle_x[p, 1] += dt * v1
+    particle_x[p, 2] += dt * v2
     if colliders.shape[0] and not pinned:
         push_out(colliders, particle_x[p], t_new, nrm)
     return particle_speed(v0, v1, v2, particle_x, p)
 
 
 @njit(parallel=True, cache=True)
-def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, particle_crack, particle_x,
-        particle_v, particle_C, chunks):
+def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip, particle_crack,
+        particle_x, particle_v, particle_C, chunks):
     """`g2p_at` for every particle, in `chunks` static chunks, each with its own scratch. Returns (max particle
     speed, number of non-finite particles)."""
     n = particle_x.shape[0]
@@ -294,8 +368,63 @@ def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_
         v = np.empty(3)
         nrm = np.empty(3)
         for p in range(t * n // chunks, (t + 1) * n // chunks):
-            s = g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop,
+            s = g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip,
                        particle_crack, particle_x, particle_v, particle_C, wx, wy, wz, v, nrm)
+            if s < 0.0:
+                chunk_bad[t] += 1
+            else:
+                chunk_vmax[t] = max(chunk_vmax[t], s)
+    return chunk_vmax.max(), chunk_bad.sum()
+
+
+@njit(cache=True, inline="always")
+def advect_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack, particle_x, particle_v, wx, wy,
+              wz, nrm):
+    """MUSL's position update of particle p (Sulsky et al. 1995), after G2P on a FLIP grid: x_p += dt sum_I w_Ip v_I
+    with v_I the particles' new velocities mapped back to the grid (P2G with no force, then walls, colliders and
+    contact), at the positions G2P read. With frozen weights the FLIP update and this one conserve the energy
+    1/2 m_p (|v_p|^2 + D_p C_p : C_p) + W (Bardenhagen 2002); moving the particles with the grid velocity of the
+    step (as g2p_at does for APIC) makes positions and velocities disagree by dt^2 per step, which damps elastic
+    motion at any step size. Pinned particles travel their prescribed velocity. Returns the speed as g2p_at."""
+    if particle_crack.shape[0] > 0 and particle_crack[p] != 0:
+        return 0.0
+    pinned = pin_mask.shape[0] > 0 and pin_mask[p] != 0
+    if pinned:
+        u0, u1, u2 = particle_v[p, 0], particle_v[p, 1], particle_v[p, 2]
+    else:
+        fx, fy, fz, bx, by, bz = stencil(particle_x, p, origin, inv_dx, wx, wy, wz)
+        u0 = u1 = u2 = 0.0
+        for i in range(4):
+            for j in range(4):
+                wij = wx[i] * wy[j]
+                for k in range(4):
+                    w = wij * wz[k]
+                    u0 += w * grid[bx + i, by + j, bz + k, 1]
+                    u1 += w * grid[bx + i, by + j, bz + k, 2]
+                    u2 += w * grid[bx + i, by + j, bz + k, 3]
+    particle_x[p, 0] += dt * u0
+    particle_x[p, 1] += dt * u1
+    particle_x[p, 2] += dt * u2
+    if colliders.shape[0] and not pinned:
+        push_out(colliders, particle_x[p], t_new, nrm)
+    return particle_speed(particle_v[p, 0], particle_v[p, 1], particle_v[p, 2], particle_x, p)
+
+
+@njit(parallel=True, cache=True)
+def advect(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack, particle_x, particle_v, chunks):
+    """`advect_at` for every particle, in `chunks` static chunks. Returns (max particle speed, number of non-finite
+    particles)."""
+    n = particle_x.shape[0]
+    chunk_vmax = np.zeros(chunks)
+    chunk_bad = np.zeros(chunks, dtype=np.int64)
+    for t in prange(chunks):
+        wx = np.empty(4)
+        wy = np.empty(4)
+        wz = np.empty(4)
+        nrm = np.empty(3)
+        for p in range(t * n // chunks, (t + 1) * n // chunks):
+            s = advect_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack, particle_x,
+                          particle_v, wx, wy, wz, nrm)
             if s < 0.0:
                 chunk_bad[t] += 1
             else:

@@ -413,6 +413,15 @@ class Simulation(Strict):
         0.7, gt=0, le=1.0, description="Safety factor on the peridynamic bond time-step bound [-]."
     )
     seed: int = Field(0, ge=0, description="Seed of the random particle sampling [-].")
+    flip: float = Field(
+        0.0, ge=0, le=1.0,
+        description="FLIP share of the particle update [-]. 0 (APIC): a particle's new velocity and affine matrix are "
+                    "the grid's, which filters them at every transfer and damps elastic motion. Above 0: the grid's "
+                    "plus this share of what the particle carried and the grid did not (Fei et al. 2021), and "
+                    "particles move with their new velocities mapped back to the grid (MUSL, one more transfer per "
+                    "step, about half again the time); 1 keeps the energy of elastic motion, with more particle-level "
+                    "noise. docs/method.md, 'Transfers', has the measurements."
+    )
     backend: Literal["cpu", "cuda"] = Field(
         "cpu", description="Where the step runs: cpu (Numba, all threads) or cuda (one NVIDIA GPU through numba.cuda; "
                            "elastic and plastic bodies without fracture). `pdmpm run --backend` overrides it."

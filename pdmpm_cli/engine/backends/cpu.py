@@ -7,7 +7,7 @@ import numpy as np
 from pdmpm_cli.engine.contact import contact_update, surfaces
 from pdmpm_cli.engine.fracture import crack_contact, crack_particle_update, inactive_fraction
 from pdmpm_cli.engine.parallel import particle_chunks
-from pdmpm_cli.engine.transfer import g2p, grid_update, p2g, position_bounds
+from pdmpm_cli.engine.transfer import advect, g2p, grid_update, p2g, position_bounds
 
 
 class CpuBackend:
@@ -73,8 +73,30 @@ class CpuBackend:
         vmax, bad = 0.0, 0
         for grid, s, e in self.fields(solver, state):
             v, b = g2p(grid, dt, m.origin, 1.0 / m.dx, state.time + dt, m.colliders, m.pin_mask[s:e],
-                       m.pin_velocity[s:e], m.pin_stop[s:e], state.particle_crack[s:e], state.particle_x[s:e],
+                       m.pin_velocity[s:e], m.pin_stop[s:e], m.flip, state.particle_crack[s:e],
+                       state.particle_x[s:e],
                        state.particle_v[s:e], state.particle_C[s:e], particle_chunks())
+            vmax, bad = max(vmax, v), bad + b
+        return vmax, bad
+
+    def remap(self, solver, state, dt) -> tuple[float, int]:
+        """MUSL after a FLIP G2P: the new particle velocities back to the grid (no force; walls, colliders and
+        contact again), at the positions G2P read, then every particle moves with them (transfer.advect_at)."""
+        m = solver.model
+        t_new = state.time + dt
+        fields = self.fields(solver, state)
+        for grid, s, e in fields:
+            p2g(state.particle_x[s:e], state.particle_v[s:e], state.particle_C[s:e], m.particle_mass[s:e],
+                state.particle_force[s:e], state.particle_crack[s:e], m.pin_mask[s:e], 0.0, m.origin, 1.0 / m.dx,
+                solver.box, state.grid_private, grid)
+            grid_update(grid, 0.0, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, solver.box, t_new,
+                        m.colliders, m.wall_boundary, m.wall_friction)
+        if solver.plan.contact:
+            self.contact(solver, state)
+        vmax, bad = 0.0, 0
+        for grid, s, e in fields:
+            v, b = advect(grid, dt, m.origin, 1.0 / m.dx, t_new, m.colliders, m.pin_mask[s:e],
+                          state.particle_crack[s:e], state.particle_x[s:e], state.particle_v[s:e], particle_chunks())
             vmax, bad = max(vmax, v), bad + b
         return vmax, bad
 

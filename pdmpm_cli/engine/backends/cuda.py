@@ -69,6 +69,14 @@ def scatter_node_atomic(g, i, j, k, m, p0, p1, p2):
 
 
 @cuda.jit(device=True)
+def scatter_impulse_atomic(g, i, j, k, f0, f1, f2):
+    """transfer.scatter_impulse with atomic adds."""
+    cuda.atomic.add(g, (i, j, k, 4), f0)
+    cuda.atomic.add(g, (i, j, k, 5), f1)
+    cuda.atomic.add(g, (i, j, k, 6), f2)
+
+
+@cuda.jit(device=True)
 def scatter_surface_atomic(g, i, j, k, g0, g1, g2, s0, s1, s2):
     """contact.scatter_surface with atomic adds."""
     cuda.atomic.add(g, (i, j, k, 0), g0)
@@ -80,7 +88,8 @@ def scatter_surface_atomic(g, i, j, k, g0, g1, g2, s0, s1, s2):
 
 
 SUBSTITUTES = {"max": larger, "min": smaller, "np": math}
-REPLACED = {transfer.scatter_node: scatter_node_atomic, contact.scatter_surface: scatter_surface_atomic}
+REPLACED = {transfer.scatter_node: scatter_node_atomic, transfer.scatter_impulse: scatter_impulse_atomic,
+            contact.scatter_surface: scatter_surface_atomic}
 
 
 @functools.cache
@@ -141,6 +150,7 @@ def launch(kern, n: int, *args):
 d_p2g_at = device(transfer.p2g_at)
 d_grid_node_update = device(transfer.grid_node_update)
 d_g2p_at = device(transfer.g2p_at)
+d_advect_at = device(transfer.advect_at)
 d_crack_contact_at = device(fracture.crack_contact_at)
 d_crack_update_at = device(fracture.crack_update_at)
 d_cell_key = device(fracture.cell_key)
@@ -235,7 +245,7 @@ def add_stats(p, s, particle_x, stats):
 
 
 @cuda.jit
-def g2p_kernel(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, particle_crack,
+def g2p_kernel(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip, particle_crack,
                particle_x, particle_v, particle_C, stats):
     p = cuda.grid(1)
     if p < particle_x.shape[0]:
@@ -244,8 +254,22 @@ def g2p_kernel(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocit
         wz = cuda.local.array(4, float64)
         v = cuda.local.array(3, float64)
         nrm = cuda.local.array(3, float64)
-        s = d_g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop,
+        s = d_g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip,
                      particle_crack, particle_x, particle_v, particle_C, wx, wy, wz, v, nrm)
+        add_stats(p, s, particle_x, stats)
+
+
+@cuda.jit
+def advect_kernel(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack, particle_x, particle_v,
+                  stats):
+    p = cuda.grid(1)
+    if p < particle_x.shape[0]:
+        wx = cuda.local.array(4, float64)
+        wy = cuda.local.array(4, float64)
+        wz = cuda.local.array(4, float64)
+        nrm = cuda.local.array(3, float64)
+        s = d_advect_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack, particle_x,
+                        particle_v, wx, wy, wz, nrm)
         add_stats(p, s, particle_x, stats)
 
 
@@ -441,9 +465,34 @@ class CudaBackend:
             launch(reset_stats, 1, self.dev_stats)
         for grid, s, e in self.fields(solver):
             pins = (rows(d.pin_mask, s, e), rows(d.pin_velocity, s, e), rows(d.pin_stop, s, e))
-            launch(g2p_kernel, e - s, grid, dt, d.origin, 1.0 / m.dx, state.time + dt, d.colliders, *pins,
+            launch(g2p_kernel, e - s, grid, dt, d.origin, 1.0 / m.dx, state.time + dt, d.colliders, *pins, m.flip,
                    rows(a.particle_crack, s, e), rows(a.particle_x, s, e), rows(a.particle_v, s, e),
                    rows(a.particle_C, s, e), self.dev_stats)
+        if solver.plan.remap:
+            return 0.0, 0  # read back after the remap's position pass
+        self.dev_stats.copy_to_host(self.stats)
+        return float(self.stats[STAT_VMAX]), int(self.stats[STAT_BAD])
+
+    def remap(self, solver, state, dt) -> tuple[float, int]:
+        """MUSL after a FLIP G2P (as CpuBackend.remap): P2G of the new velocities with no force at the positions G2P
+        read (the same node box), the grid update with dt = 0 and contact, then the position pass; its positions
+        join the statistics G2P opened (bounds of both positions: a box at most one step larger)."""
+        m, a, d, b = solver.model, solver.a, solver.m, solver.box
+        nodes_in_box = int((b[1] - b[0]) * (b[3] - b[2]) * (b[5] - b[4]))
+        t_new = state.time + dt
+        fields = self.fields(solver)
+        for grid, s, e in fields:
+            launch(zero_box, nodes_in_box, self.box, grid)
+            launch(p2g_kernel, e - s, rows(a.particle_x, s, e), rows(a.particle_v, s, e), rows(a.particle_C, s, e),
+                   rows(d.particle_mass, s, e), rows(a.particle_force, s, e), rows(a.particle_crack, s, e),
+                   rows(d.pin_mask, s, e), 0.0, d.origin, 1.0 / m.dx, grid)
+            launch(grid_update_kernel, nodes_in_box, grid, 0.0, d.gravity, d.wind_velocity, m.wind_drag, d.origin,
+                   m.dx, self.box, t_new, d.colliders, m.wall_boundary, m.wall_friction)
+        if solver.plan.contact:
+            self.contact(solver, state)
+        for grid, s, e in fields:
+            launch(advect_kernel, e - s, grid, dt, d.origin, 1.0 / m.dx, t_new, d.colliders, rows(d.pin_mask, s, e),
+                   rows(a.particle_crack, s, e), rows(a.particle_x, s, e), rows(a.particle_v, s, e), self.dev_stats)
         self.dev_stats.copy_to_host(self.stats)
         return float(self.stats[STAT_VMAX]), int(self.stats[STAT_BAD])
 
