@@ -1,9 +1,11 @@
 """Contact between bodies: the figures of docs/results.md ('Contact between bodies').
 
-Usage: python bench/contact.py [spheres|sliding|passing|cost|all] [--radius 5 10] [--steps 20]
+Usage: python bench/contact.py [spheres|rebound|sliding|passing|cost|all] [--radius 5 10] [--steps 20]
 - spheres: two identical elastic spheres (radius in particle spacings, spacing half a cell) meeting head-on at 0.05
   of the P-wave speed (tests/contact_cases.py): where contact starts relative to the geometric touch, momentum,
   kinetic energy after over before, separation; with separate fields (the default) and one shared field.
+- rebound: an elastic ball (radius in spacings) dropped 0.1 m on a rigid, frictionless floor collider: rebound
+  height over drop height (e^2; 1 for an elastic impact), with APIC (simulation.flip 0) and FLIP shares.
 - sliding: a block sliding on an elastic slab with friction 0.3 and 0: deceleration against mu g.
 - passing: two blocks half a cell apart, one sliding past the other: momentum the resting one picks up.
 - cost: time per step of the sphere pair with one field per body against one shared field, by phase.
@@ -31,6 +33,16 @@ def spheres(radii):
             gap = "none" if o["contact_gap"] is None else f"{o['contact_gap']:+.2f}"
             print(f"| {r:g} | {mode} | {o['particles']} | {o['steps']} | {gap} | {o['momentum']:.1e} | "
                   f"{100 * o['ke']:.1f} % | {100 * o['energy']:.1f} % | {o['apart']:+.2f} | {o['seconds']:.0f} |",
+                  flush=True)
+
+
+def rebound(radii, flips):
+    print("| radius [spacings] | simulation.flip | particles | steps | rebound / drop height | wall [s] |")
+    print("|---|---|---|---|---|---|")
+    for r in radii:
+        for flip in flips:
+            o = C.ball_drop(r, flip=flip)
+            print(f"| {r:g} | {flip:g} | {o['particles']} | {o['steps']} | {o['rebound']:.3f} | {o['seconds']:.0f} |",
                   flush=True)
 
 
@@ -75,13 +87,17 @@ def cost(radii, steps: int):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("what", nargs="?", default="all", choices=["spheres", "sliding", "passing", "cost", "all"])
+    ap.add_argument("what", nargs="?", default="all",
+                    choices=["spheres", "rebound", "sliding", "passing", "cost", "all"])
     ap.add_argument("--radius", type=float, nargs="+", default=[5.0, 10.0], help="sphere radius [spacings]")
+    ap.add_argument("--flip", type=float, nargs="+", default=[0.0, 0.95, 0.99, 1.0], help="FLIP shares (rebound)")
     ap.add_argument("--steps", type=int, default=20, help="steps timed per cost row")
     args = ap.parse_args()
     np.set_printoptions(precision=4)
     if args.what in ("spheres", "all"):
         spheres(args.radius)
+    if args.what in ("rebound", "all"):
+        rebound(args.radius, args.flip)
     if args.what in ("sliding", "all"):
         sliding()
     if args.what in ("passing", "all"):

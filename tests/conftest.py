@@ -47,8 +47,9 @@ def cuda_compare_commands():
 
 
 class CudaCompare:
-    """The CUDA simulator comparisons running in the background; `rows()` waits for them. Output goes to temporary
-    files, not pipes: a full pipe would stall a process nobody reads until the end."""
+    """The CUDA simulator comparisons running in the background; `rows()` waits for them. They run at a lower
+    priority (nice 10), so that they take the cores the rest of the suite leaves idle rather than slowing it.
+    Output goes to temporary files, not pipes: a full pipe would stall a process nobody reads until the end."""
 
     def __init__(self):
         env = dict(os.environ, COLUMNS="200", NUMBA_ENABLE_CUDASIM="1")
@@ -56,7 +57,9 @@ class CudaCompare:
         self.runs = []
         for cmd in cuda_compare_commands():
             out, err = tempfile.TemporaryFile("w+"), tempfile.TemporaryFile("w+")
-            self.runs.append((subprocess.Popen(cmd, stdout=out, stderr=err, text=True, cwd=root, env=env), out, err))
+            self.runs.append((subprocess.Popen(cmd, stdout=out, stderr=err, text=True, cwd=root, env=env,
+                                               preexec_fn=(lambda: os.nice(10)) if os.name == "posix" else None),
+                              out, err))
 
     def rows(self, timeout: float = 1800) -> list[str]:
         """The JSON lines the runs printed; raises AssertionError with the end of stderr if one failed."""

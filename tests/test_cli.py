@@ -157,7 +157,7 @@ def test_bundled_cloth_scene_writes_moving_meshes(tmp_path):
 
     scene = Path(__file__).parents[1] / "scenes" / "cloth_pegs.yaml"
     out = tmp_path / "cloth"
-    r = pdmpm("run", scene, "--out", out, "--quiet", "--set", "simulation.duration=0.125")
+    r = pdmpm("run", scene, "--out", out, "--quiet", "--set", "simulation.duration=0.06", "--set", "simulation.fps=50")
     assert r.returncode == 0, r.stderr
     run = read_run(out / "run.h5")
     plys = sorted((out / "meshes").glob("cloth_*.ply"))

@@ -2,9 +2,10 @@
 
 The step reads top to bottom as the paper's loop: bond forces (eq. 4, then each body's material), P2G, the grid
 update, contact between bodies (ours: engine/contact.py), the crack particles' own integrator and G2P, with a FLIP
-share MUSL's position pass (ours: engine/transfer.py, advect_at), then fracture. A part a scene does not need is skipped by a switch the Plan set once (`plan.fbar`, `plan.fracture`,
-`plan.contact`, `plan.remap`); materials are called through their registry entries,
-never by type. The backend (engine/backends) runs each part on the CPU or the GPU."""
+share MUSL's position pass (ours: engine/transfer.py, advect_at), then fracture. A part a scene does not need is
+skipped by a switch the Plan set once (`plan.fbar`, `plan.fracture`, `plan.contact`, `plan.remap`); materials are
+called through their registry entries, never by type. The backend (engine/backends) runs each part on the CPU or
+the GPU."""
 
 import time
 from collections import defaultdict
