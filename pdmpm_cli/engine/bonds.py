@@ -12,7 +12,6 @@ from numba import njit, prange
 from scipy.spatial import cKDTree
 
 from pdmpm_cli.engine.kernel import Kernel
-from pdmpm_cli.engine.parallel import VECTOR_MATH
 
 # Regularisation of rank-deficient shape tensors (cloth, chains): K + EPS tr(K) I, exact within the span.
 RANK_TOL = 1e-6
@@ -150,7 +149,7 @@ def times_kinv(p, a00, a01, a02, a10, a11, a12, a20, a21, a22, particle_Kinv, pa
         particle_Fbar[p, 2, c] = a20 * k[0, c] + a21 * k[1, c] + a22 * k[2, c]
 
 
-@njit(parallel=True, cache=True, fastmath=VECTOR_MATH, error_model="numpy")
+@njit(parallel=True, cache=True, error_model="numpy")  # no fastmath: see parallel.py
 def averaged_deformation(start, end, particle_x, rest_x, bond_start, bond_nbr, bond_wv, particle_Kinv,
                          particle_Fbar, chunks):
     """Fbar_p = (sum_q w V_q eta (x) xi) K_p^-1 (eq. 4 with the correction of docs/method.md: eta, not w, in front)

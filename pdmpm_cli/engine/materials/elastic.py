@@ -30,7 +30,6 @@ from pdmpm_cli.engine import fields
 from pdmpm_cli.engine.bonds import bond_vector, chunk_width, influence
 from pdmpm_cli.engine.kernel import Kernel
 from pdmpm_cli.engine.materials.base import MaterialKind
-from pdmpm_cli.engine.parallel import VECTOR_MATH
 from pdmpm_cli.spec import Strict
 
 TINY = 1e-300  # floor of a squared bond length: a zero-length bond gets a finite coefficient times a zero vector
@@ -133,7 +132,7 @@ def gather_pairs(p, has_mu, has_crack, has_active, has_ep, particle_x, rest_x, b
     return m
 
 
-@njit(parallel=True, cache=True, fastmath=VECTOR_MATH, error_model="numpy")
+@njit(parallel=True, cache=True, error_model="numpy")  # no fastmath: see parallel.py
 def elastic_forces(start, end, lam, mu, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_wv,
                    bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, force_private):
     """Bond forces (eqs. 6-7, 9) of particles start..end-1 of one elastic or plastic body -> force_private, one
