@@ -156,7 +156,7 @@ def averaged_deformation(start, end, particle_x, rest_x, bond_start, bond_nbr, b
     for particles start..end-1, over the whole reference family: only intact particles use Fbar (a particle with a
     broken bond uses eta instead, elastic.py), so the sum always matches the K^-1 it is multiplied by. The CPU's
     form: two loops per particle, a gather of its neighbours' bond vectors (w V_q is stored per bond, bond_wv) into
-    contiguous scratch rows, then a loop without gathers that the compiler turns into SIMD."""
+    contiguous scratch rows, then a loop without gathers that sums in bond order (no fastmath: the order is fixed)."""
     n = end - start
     for t in prange(chunks):
         lo, hi = start + t * n // chunks, start + (t + 1) * n // chunks

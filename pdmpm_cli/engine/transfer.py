@@ -228,20 +228,9 @@ def pin_share(stop, t_new, dt):
 
 
 @njit(cache=True, inline="always")
-def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip, particle_crack,
-           particle_x, particle_v, particle_C, wx, wy, wz, v, nrm):
-    """G2P of particle p: velocity and APIC affine matrix (step 5), pins, particle collisions (step 6), advection.
-    Returns its speed, -1 when it is not finite, 0 for a crack-surface particle (left to its own integrator).
-
-    On a FLIP grid (FLIP_CHANNELS) the new velocity and affine matrix are the grid's plus the share `flip` of what
-    the particle carried and the grid did not, (v_p, C_p) - G2P(v_I^n) (Fei et al. 2021, eq. 9, applied to the
-    affine matrix too: APIC's transfers are those of PIC for the pair (v, C) under the mass m_p diag(1, D_p)), and
-    the particle does not move here: `advect_at` moves it with the re-mapped velocity (MUSL)."""
-    if particle_crack.shape[0] > 0 and particle_crack[p] != 0:
-        return 0.0
-    dx = 1.0 / inv_dx
-    scale = 3.0 * inv_dx * inv_dx  # D_p^-1 for cubic B-splines (Jiang et al. 2015)
-    fx, fy, fz, bx, by, bz = stencil(particle_x, p, origin, inv_dx, wx, wy, wz)
+def affine_sums(grid, c, bx, by, bz, fx, fy, fz, dx, wx, wy, wz):
+    """sum_i w_i u_i and sum_i w_i u_i (x_i - x_p)^T over a particle's 64 nodes, u the grid's channels c..c+2:
+    the velocity and the affine moments B_p of APIC's G2P (step 5)."""
     # The sums over the 64 nodes of w u and w u (x_i - x_p) factor axis by axis (w = wx wy wz, and each component
     # of x_i - x_p depends on one axis): sum over k first, then j, then i.
     v0 = v1 = v2 = 0.0
@@ -258,9 +247,9 @@ def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity
             for k in range(4):
                 d2 = (bz + k - fz) * dx
                 w = wz[k]
-                u0 = w * grid[bx + i, by + j, bz + k, 1]
-                u1 = w * grid[bx + i, by + j, bz + k, 2]
-                u2 = w * grid[bx + i, by + j, bz + k, 3]
+                u0 = w * grid[bx + i, by + j, bz + k, c]
+                u1 = w * grid[bx + i, by + j, bz + k, c + 1]
+                u2 = w * grid[bx + i, by + j, bz + k, c + 2]
                 k0 += u0
                 k1 += u1
                 k2 += u2
@@ -290,34 +279,31 @@ def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity
         b02 += w * z0
         b12 += w * z1
         b22 += w * z2
+    return v0, v1, v2, b00, b01, b02, b10, b11, b12, b20, b21, b22
+
+
+@njit(cache=True, inline="always")
+def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip, particle_crack,
+           particle_x, particle_v, particle_C, wx, wy, wz, v, nrm):
+    """G2P of particle p: velocity and APIC affine matrix (step 5), pins, particle collisions (step 6), advection.
+    Returns its speed, -1 when it is not finite, 0 for a crack-surface particle (left to its own integrator).
+
+    On a FLIP grid (FLIP_CHANNELS) the new velocity and affine matrix are the grid's plus the share `flip` of what
+    the particle carried and the grid did not, (v_p, C_p) - G2P(v_I^n) (Fei et al. 2021, eq. 9, applied to the
+    affine matrix too: APIC's transfers are those of PIC for the pair (v, C) under the mass m_p diag(1, D_p)), and
+    the particle does not move here: `advect_at` moves it with the re-mapped velocity (MUSL)."""
+    if particle_crack.shape[0] > 0 and particle_crack[p] != 0:
+        return 0.0
+    dx = 1.0 / inv_dx
+    scale = 3.0 * inv_dx * inv_dx  # D_p^-1 for cubic B-splines (Jiang et al. 2015)
+    fx, fy, fz, bx, by, bz = stencil(particle_x, p, origin, inv_dx, wx, wy, wz)
+    v0, v1, v2, b00, b01, b02, b10, b11, b12, b20, b21, b22 = affine_sums(grid, 1, bx, by, bz, fx, fy, fz, dx,
+                                                                         wx, wy, wz)
     pinned = pin_mask.shape[0] > 0 and pin_mask[p] != 0
     remapped = grid.shape[3] > CHANNELS
     if remapped and not pinned:
-        o0 = o1 = o2 = 0.0
-        a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
-        for i in range(4):
-            d0 = (bx + i - fx) * dx
-            for j in range(4):
-                d1 = (by + j - fy) * dx
-                wij = wx[i] * wy[j]
-                for k in range(4):
-                    d2 = (bz + k - fz) * dx
-                    w = wij * wz[k]
-                    u0 = w * grid[bx + i, by + j, bz + k, 4]
-                    u1 = w * grid[bx + i, by + j, bz + k, 5]
-                    u2 = w * grid[bx + i, by + j, bz + k, 6]
-                    o0 += u0
-                    o1 += u1
-                    o2 += u2
-                    a00 += u0 * d0
-                    a01 += u0 * d1
-                    a02 += u0 * d2
-                    a10 += u1 * d0
-                    a11 += u1 * d1
-                    a12 += u1 * d2
-                    a20 += u2 * d0
-                    a21 += u2 * d1
-                    a22 += u2 * d2
+        o0, o1, o2, a00, a01, a02, a10, a11, a12, a20, a21, a22 = affine_sums(grid, 4, bx, by, bz, fx, fy, fz, dx,
+                                                                             wx, wy, wz)
         v0 += flip * (particle_v[p, 0] - o0)
         v1 += flip * (particle_v[p, 1] - o1)
         v2 += flip * (particle_v[p, 2] - o2)
