@@ -1,6 +1,7 @@
 """The FLIP share (simulation.flip): the figures of docs/results.md ('FLIP share and MUSL').
 
-Usage: python bench/flip.py [bar|free|spheres] --flip 0 0.95 1 [--radius 10] [--sampling jittered] [--walls 1]
+Usage: python bench/flip.py [bar|free|spheres] --flip 0 0.95 1 [--radius 10] [--sampling jittered relaxed lattice]
+       [--bond-safety 0.35 0.7 1] [--walls 1]
 - bar: Sulsky's bar as tests/test_dynamics.py runs it (fixed end, slip walls, 2 periods): period, first amplitude,
   decay of the centre-of-mass velocity's amplitude per period, energy at the end over the initial kinetic energy.
 - free: the same column free at both ends in its first mode (period 2 L / c = 5 s), 20 s: period and decay per
@@ -32,8 +33,11 @@ def energy(sim: Sim) -> float:
     return sim.solver.kinetic_energy(s) + sim.solver.strain_energy(s) + affine
 
 
-def bar(flip: float):
-    sim = Sim(with_flip(bar_scene(1.25, 2.0), flip))
+def bar(flip: float, sampling: str, bond_safety: float):
+    d = with_flip(bar_scene(1.25, 2.0), flip)
+    d["bodies"][0]["geometry"]["sampling"] = sampling
+    d["simulation"]["bond_safety"] = bond_safety
+    sim = Sim(d)
     bar_start(sim)
     mass = sim.model.particle_mass.sum()
     e0 = energy(sim)
@@ -46,7 +50,7 @@ def bar(flip: float):
     sim.advance(20.0, record)
     t, v = np.array(t), np.array(v)
     amp = [np.abs(v[(t >= a) & (t < a + 10.0)]).max() for a in (0.0, 10.0)]
-    print(f"| {flip:g} | {period(t, v):.4f} | {amp[0]:.5f} | {100 * (1 - amp[1] / amp[0]):.2f} % | "
+    print(f"| {flip:g} | {sampling} | {bond_safety:g} | {period(t, v):.4f} | {amp[0]:.5f} | {100 * (1 - amp[1] / amp[0]):.2f} % | "
           f"{energy(sim) / e0:.3f} | {sim.state.step} | {time.perf_counter() - t0:.0f} |", flush=True)
 
 
@@ -90,12 +94,15 @@ def main():
     ap.add_argument("what", choices=["bar", "free", "spheres"])
     ap.add_argument("--flip", type=float, nargs="+", default=[0.0, 0.95, 1.0])
     ap.add_argument("--radius", type=float, default=10.0, help="sphere radius [spacings]")
-    ap.add_argument("--sampling", default="jittered", help="free: the column's sampling")
+    ap.add_argument("--sampling", nargs="+", default=["jittered"], help="bar, free: the column's sampling")
+    ap.add_argument("--bond-safety", type=float, nargs="+", default=[0.7],
+                    help="bar: simulation.bond_safety (the step, hence the number of transfers)")
     ap.add_argument("--walls", type=int, default=1, help="free: 1 keeps the slip walls on the long sides")
     a = ap.parse_args()
     if a.what == "bar":
-        print("| flip | period [s] | v_com amplitude | decay per period | energy end / start | steps | wall [s] |")
-        print("|---|---|---|---|---|---|---|")
+        print("| flip | sampling | bond_safety | period [s] | v_com amplitude | decay per period | energy end / start | "
+              "steps | wall [s] |")
+        print("|---|---|---|---|---|---|---|---|---|")
     elif a.what == "free":
         print("| flip | sampling | walls | period [s] | end-velocity decay per period | energy end / start | steps |")
         print("|---|---|---|---|---|---|---|")
@@ -104,11 +111,13 @@ def main():
               "gap at end [cells] | wall [s] |")
         print("|---|---|---|---|---|---|---|---|")
     for flip in a.flip:
-        if a.what == "bar":
-            bar(flip)
-        elif a.what == "free":
-            free(flip, a.sampling, bool(a.walls))
-        else:
+        for sampling in a.sampling:
+            if a.what == "bar":
+                for safety in a.bond_safety:
+                    bar(flip, sampling, safety)
+            elif a.what == "free":
+                free(flip, sampling, bool(a.walls))
+        if a.what == "spheres":
             spheres(flip, a.radius)
 
 
