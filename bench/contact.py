@@ -28,7 +28,7 @@ def spheres(radii):
           "KE after / before | energy after / before | gap at end [cells] | wall [s] |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for r in radii:
-        for mode in ("separate", "shared"):
+        for mode in ("separate", "penalty", "shared"):
             o = C.sphere_collision(r, mode=mode)
             gap = "none" if o["contact_gap"] is None else f"{o['contact_gap']:+.2f}"
             print(f"| {r:g} | {mode} | {o['particles']} | {o['steps']} | {gap} | {o['momentum']:.1e} | "
@@ -47,18 +47,20 @@ def rebound(radii, flips):
 
 
 def sliding():
-    print("| friction | deceleration [m/s^2] | / (mu g) | speed at 0.15 s / v0 |")
-    print("|---|---|---|---|")
-    for mu in (0.3, 0.0):
-        o = C.sliding(mu)
-        ratio = f"{o['deceleration'] / (mu * C.G):.4f}" if mu else "-"
-        print(f"| {mu:g} | {o['deceleration']:.4f} | {ratio} | {o['v'][-1]:.5f} |", flush=True)
+    print("| contact model | friction | deceleration [m/s^2] | / (mu g) | speed at 0.15 s / v0 |")
+    print("|---|---|---|---|---|")
+    for mode in ("separate", "penalty"):
+        for mu in (0.3, 0.0):
+            o = C.sliding(mu, mode=mode)
+            ratio = f"{o['deceleration'] / (mu * C.G):.4f}" if mu else "-"
+            print(f"| {'projection' if mode == 'separate' else mode} | {mu:g} | {o['deceleration']:.4f} | {ratio} | "
+                  f"{o['v'][-1]:.5f} |", flush=True)
 
 
 def passing():
     print("| fields | momentum picked up / m v0 | moving block's speed / v0 |")
     print("|---|---|---|")
-    for mode in ("separate", "shared"):
+    for mode in ("separate", "penalty", "shared"):
         o = C.passing(mode)
         print(f"| {mode} | {o['picked_up']:.2e} | {o['speed']:.5f} |", flush=True)
 

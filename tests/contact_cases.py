@@ -32,6 +32,12 @@ def hertz_time(radius: float, closing_speed: float, E: float = 1e5, nu: float = 
     return float(2.87 * ((m / 2) ** 2 / (radius / 2 * e_star**2 * closing_speed)) ** 0.2)
 
 
+def contact(mode: str, **extra) -> dict:
+    """The scene's contact section for `mode`: separate or shared (contact.mode), or penalty (separate fields,
+    contact.model penalty)."""
+    return ({"mode": "separate", "model": "penalty"} if mode == "penalty" else {"mode": mode}) | extra
+
+
 def sphere_pair(spacings: float, closing: float = 0.05, mode: str = "separate", radius: float = 0.1) -> dict:
     """Two identical elastic spheres of `spacings` particle spacings in radius (spacing half a cell, relaxed
     sampling), closing along x at `closing` x the P-wave speed c (each at half of it), released one cell apart,
@@ -49,7 +55,7 @@ def sphere_pair(spacings: float, closing: float = 0.05, mode: str = "separate", 
         "grid": {"cell_size": cell, "domain": {"min": [-x - 2 * radius - pad, -radius - pad, -radius - pad],
                                                "max": [x + 2 * radius + pad, radius + pad, radius + pad]}},
         "gravity": [0, 0, 0],
-        "contact": {"mode": mode},
+        "contact": contact(mode),
         "bodies": [{"name": name, "velocity": [s * v, 0, 0],
                     "geometry": {"mode": "cloud", "spacing": h,
                                  "shape": {"type": "sphere", "center": [-s * x, 0, 0], "radius": radius}},
@@ -98,7 +104,8 @@ def sphere_collision(spacings: float, closing: float = 0.05, mode: str = "separa
                   "v_right": float(body_velocity(sim, 1)[0]), "seconds": time.perf_counter() - t0}
 
 
-def sliding_block(friction: float, v0: float = 1.0, duration: float = 0.2, cell: float = 0.02) -> dict:
+def sliding_block(friction: float, v0: float = 1.0, duration: float = 0.2, cell: float = 0.02,
+                  mode: str = "separate") -> dict:
     """A block (4 x 2 x 4 cells) sliding at v0 along x on a slab (20 x 3 x 8 cells) that rests on the sticky floor
     (a plane collider), under gravity, with Coulomb friction `friction` between them. The block starts on the slab
     (surfaces touching), so its weight presses on it from the first step."""
@@ -118,7 +125,7 @@ def sliding_block(friction: float, v0: float = 1.0, duration: float = 0.2, cell:
         "grid": {"cell_size": cell, "domain": {"min": [0, 0, 0], "max": list(width)}},
         "gravity": [0, -G, 0],
         "colliders": [{"type": "plane", "point": [0, floor, 0], "normal": [0, 1, 0], "boundary": "sticky"}],
-        "contact": {"friction": friction},
+        "contact": contact(mode, friction=friction),
         "bodies": [
             {"name": "slab", "geometry": box((cx, floor + slab[1] / 2, cz), slab), "material": elastic()},
             {"name": "block", "geometry": box((cx - slab[0] / 4, floor + slab[1] + block[1] / 2, cz), block),
@@ -127,10 +134,11 @@ def sliding_block(friction: float, v0: float = 1.0, duration: float = 0.2, cell:
     }
 
 
-def sliding(friction: float, v0: float = 1.0, duration: float = 0.15, settle: float = 0.05, cell: float = 0.02) -> dict:
+def sliding(friction: float, v0: float = 1.0, duration: float = 0.15, settle: float = 0.05, cell: float = 0.02,
+            mode: str = "separate") -> dict:
     """Run the sliding block; its x velocity over time and the least-squares deceleration after `settle` s (while
     it still moves) [m/s^2]."""
-    sim = Sim(sliding_block(friction, v0, duration, cell))
+    sim = Sim(sliding_block(friction, v0, duration, cell, mode))
     t, v = [0.0], [float(body_velocity(sim, 1)[0])]
     for frame in range(1, int(round(duration * 100)) + 1):
         sim.advance(frame / 100)
@@ -157,7 +165,7 @@ def passing(mode: str = "separate", friction: float = 0.5, v0: float = 0.5, dura
         "simulation": {"duration": duration, "fps": 100},
         "grid": {"cell_size": cell, "domain": {"min": [0, 0, 0], "max": [0.6, 0.6, 0.4]}},
         "gravity": [0, 0, 0],
-        "contact": {"mode": mode, "friction": friction},
+        "contact": contact(mode, friction=friction),
         "bodies": [{"name": "still", "geometry": block(y0), "material": elastic()},
                    {"name": "moving", "geometry": block(y0 + size + cell / 2), "material": elastic(),
                     "velocity": [v0, 0, 0]}],

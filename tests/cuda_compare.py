@@ -83,6 +83,13 @@ SYNTHETIC = {
 # two bodies in contact (the remap's contact pass)
 SYNTHETIC["flip_pins"] = {**SYNTHETIC["collider_pins"], "simulation": {"duration": 1.0, "fps": 10, "flip": 0.95}}
 SYNTHETIC["flip_contact"] = {**SYNTHETIC["two_bodies"], "simulation": {"duration": 1.0, "fps": 10, "flip": 0.95}}
+# the two bodies, closer, with the penalty contact (contact.model penalty), which starts nearer the touch
+SYNTHETIC["penalty_contact"] = {**SYNTHETIC["two_bodies"],
+                                "contact": {**SYNTHETIC["two_bodies"]["contact"], "model": "penalty"}}
+SYNTHETIC["penalty_contact"]["bodies"] = [
+    SYNTHETIC["two_bodies"]["bodies"][0],
+    {**SYNTHETIC["two_bodies"]["bodies"][1],
+     "geometry": {**BLOCK, "shape": {**BLOCK["shape"], "center": [0.56, 0.55, 0.5]}}}]
 
 # Every bundled scene at a tiny resolution: its materials, geometry modes, pins, colliders and fracture as shipped.
 SHELL = ("grid.cell_size=0.05", "bodies.0.geometry.spacing=0.05", "bodies.0.geometry.layers=1",

@@ -93,8 +93,9 @@ def test_mesh_collider_alike(compared):
     assert_same(row)
 
 
-def test_two_bodies_in_contact_alike(compared):
-    row = compared["two_bodies"]
+@pytest.mark.parametrize("case", ["two_bodies", "penalty_contact"])
+def test_two_bodies_in_contact_alike(compared, case):
+    row = compared[case]
     assert "contact" in row["phases"] and row["exchanged"] > 0.01  # the bodies pushed each other
     assert_same(row)
 

@@ -18,6 +18,11 @@ c_f = sum_p m_p N_I (x_p - x_I) / m_f, must lie closer than `CONTACT_GAP` cells 
 spaces in contact that distance is 0.93 cells at a node on their interface (and larger at nodes inside either
 body); a gap g between them adds g.
 
+The projection is an inelastic impact of the nodes' masses at every step of an approach, so colliding bodies lose
+much of their kinetic energy. `contact.model: penalty` replaces it with an elastic push along the normal wherever
+the mass centres are closer than on the interface of touching bodies (`PENALTY_GAP`), proportional to how much
+closer, while the bodies approach and while they separate, so its work comes back (docs/method.md).
+
 `grid_surface[f]` holds per node G_f (0..2, [kg/m]) and m_f (c_f - x_I) (3..5, [kg m]).
 """
 
@@ -29,6 +34,9 @@ from numba import njit, prange
 from pdmpm_cli.engine.transfer import stencil_on_grid, stencil_with_gradients
 
 CONTACT_GAP = 1.25  # contact acts where the fields' mass centres at a node are closer than this along n [cells]
+PENALTY_GAP = 1.15  # penalty: the mass centres' normal distance at a node on the interface of two touching half
+# spaces [cells]; closer than that the materials overlap
+LIGHT = 0.02  # penalty: no push at a node where one side holds less than this share of the mass
 SURFACE = 6  # components of grid_surface: mass gradient, mass-weighted offset of the particles from the node
 
 
@@ -94,7 +102,7 @@ def surfaces(particle_x, particle_mass, particle_crack, origin, inv_dx, box, pri
 
 
 @njit(cache=True, inline="always")
-def contact_node_at(i, j, k, grid_field, grid_surface, friction, dx):
+def contact_node_at(i, j, k, grid_field, grid_surface, friction, stiffness, dx, dt):
     """Node (i, j, k), after every field's grid update: each field that has mass here, approaches the others along
     its contact normal and meets them (position check) loses its normal velocity relative to the centre of mass,
     and Coulomb friction (coefficient of the pair with the heaviest other field) acts on the tangential part: it
@@ -141,15 +149,11 @@ def contact_node_at(i, j, k, grid_field, grid_surface, friction, dx):
         d1 = grid_field[f, i, j, k, 2] - c1
         d2 = grid_field[f, i, j, k, 3] - c2
         dn = d0 * n0 + d1 * n1 + d2 * n2
-        if dn <= 0.0:
-            continue  # moving away from the others: free
         # the distance between this field's mass centre and the others' at the node: the materials meet here
         mo = mt - m
         e0 = (s0 - grid_surface[f, i, j, k, 3]) / mo - grid_surface[f, i, j, k, 3] / m
         e1 = (s1 - grid_surface[f, i, j, k, 4]) / mo - grid_surface[f, i, j, k, 4] / m
         e2 = (s2 - grid_surface[f, i, j, k, 5]) / mo - grid_surface[f, i, j, k, 5] / m
-        if e0 * e0 + e1 * e1 + e2 * e2 > (CONTACT_GAP * dx) ** 2:
-            continue
         heaviest, mh = f, 0.0
         for o in range(nf):
             if o != f and grid_field[o, i, j, k, 0] > mh:
@@ -157,6 +161,25 @@ def contact_node_at(i, j, k, grid_field, grid_surface, friction, dx):
         mu = friction[f, heaviest]
         t0, t1, t2 = d0 - dn * n0, d1 - dn * n1, d2 - dn * n2
         tt = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        kp = stiffness[f, heaviest] if stiffness.shape[0] > 0 else 0.0
+        if kp > 0.0:
+            # penalty: the mass centres closer than on the interface of touching half spaces -> an elastic push
+            # along -n, F = kp m_red overlap / dx^2 (equal and opposite for two fields: their e and n are), whether
+            # they approach or separate; friction up to mu F.
+            overlap = PENALTY_GAP * dx - math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+            if overlap <= 0.0 or m < LIGHT * mt or mo < LIGHT * mt:
+                continue
+            overlap = min(overlap, 0.5 * dx)
+            push = kp * mo / mt * overlap * dt / (dx * dx)  # F dt / m [m/s]
+            r = 1.0 if tt <= mu * push else mu * push / tt
+            grid_field[f, i, j, k, 1] -= push * n0 + r * t0
+            grid_field[f, i, j, k, 2] -= push * n1 + r * t1
+            grid_field[f, i, j, k, 3] -= push * n2 + r * t2
+            continue
+        if dn <= 0.0:
+            continue  # moving away from the others: free
+        if e0 * e0 + e1 * e1 + e2 * e2 > (CONTACT_GAP * dx) ** 2:
+            continue
         if tt <= mu * dn:
             grid_field[f, i, j, k, 1], grid_field[f, i, j, k, 2], grid_field[f, i, j, k, 3] = c0, c1, c2
         else:
@@ -167,9 +190,9 @@ def contact_node_at(i, j, k, grid_field, grid_surface, friction, dx):
 
 
 @njit(parallel=True, cache=True)
-def contact_update(grid_field, grid_surface, friction, dx, box):
-    """`contact_node_at` on every node of the box."""
+def contact_update(grid_field, grid_surface, friction, stiffness, dx, dt, box):
+    """`contact_node_at` on every node of the box (dt 0: MUSL's second pass, where a penalty pushes nothing)."""
     for i in prange(box[0], box[1]):
         for j in range(box[2], box[3]):
             for k in range(box[4], box[5]):
-                contact_node_at(i, j, k, grid_field, grid_surface, friction, dx)
+                contact_node_at(i, j, k, grid_field, grid_surface, friction, stiffness, dx, dt)

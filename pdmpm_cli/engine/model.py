@@ -4,7 +4,7 @@ scene itself."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -59,6 +59,8 @@ class Model:
     wall_friction: float
     contact_friction: np.ndarray  # (bodies, bodies) Coulomb coefficients of contact between bodies [-]; (0, 0):
     # the bodies share one grid field (one body, or contact mode shared)
+    contact_stiffness: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))  # (bodies, bodies) penalty
+    # coefficients [m^2/s^2]; 0 for a pair: the projection (engine.contact)
     emitter: Any = None  # engine.emitter.Emitter of the last body, or None
     flip: float = 0.0  # FLIP share of the G2P update [-]; 0: APIC alone, > 0: FLIP grid and MUSL (transfer.advect_at)
 

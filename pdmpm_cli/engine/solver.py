@@ -110,7 +110,7 @@ class Solver:
             self.backend.grid_update(self, state, dt)
         if self.plan.contact:
             with self.timed("contact"):
-                self.backend.contact(self, state)
+                self.backend.contact(self, state, dt)
         crack_vmax = 0.0
         if self.plan.fracture:
             with self.timed("crack"):

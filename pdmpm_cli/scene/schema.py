@@ -496,6 +496,16 @@ class Contact(Strict):
                             "`pairs` entry names [-] (0: frictionless).")
     pairs: list[ContactPair] = Field(default_factory=list,
                                      description="Friction of particular body pairs, overriding `friction`.")
+    model: Literal["projection", "penalty"] = Field(
+        "projection", description="projection: where two fields meet and approach, the approaching one loses its "
+        "normal velocity relative to their centre of mass (Bardenhagen et al. 2000; an inelastic impact of the "
+        "nodes' masses, so colliding bodies lose kinetic energy); penalty: where the fields' materials overlap at a "
+        "node, an elastic force pushes them apart, as stiff as a cell of the stiffer body (energy comes back as "
+        "they separate).")
+    stiffness: float = Field(2.0, gt=0, description="penalty: the contact stiffness at a node, in units of "
+                             "c^2 m_red / dx^2 (c the pair's larger P-wave speed, m_red the reduced mass of the two "
+                             "fields at the node); 4 makes the interface about as stiff as one cell of the material "
+                             "[-].")
 
 
 class Output(Strict):

@@ -64,9 +64,10 @@ class CpuBackend:
             grid_update(grid, dt, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, solver.box,
                         state.time + dt, m.colliders, m.wall_boundary, m.wall_friction)
 
-    def contact(self, solver, state):
+    def contact(self, solver, state, dt):
         m = solver.model
-        contact_update(state.grid_field, state.grid_surface, m.contact_friction, m.dx, solver.box)
+        contact_update(state.grid_field, state.grid_surface, m.contact_friction, m.contact_stiffness, m.dx, dt,
+                       solver.box)
 
     def g2p(self, solver, state, dt) -> tuple[float, int]:
         m = solver.model
@@ -92,7 +93,7 @@ class CpuBackend:
             grid_update(grid, 0.0, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, solver.box, t_new,
                         m.colliders, m.wall_boundary, m.wall_friction)
         if solver.plan.contact:
-            self.contact(solver, state)
+            self.contact(solver, state, 0.0)
         vmax, bad = 0.0, 0
         for grid, s, e in fields:
             v, b = advect(grid, dt, m.origin, 1.0 / m.dx, t_new, m.colliders, m.pin_mask[s:e],

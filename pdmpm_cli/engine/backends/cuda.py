@@ -215,10 +215,10 @@ def surface_kernel(particle_x, particle_mass, particle_crack, origin, inv_dx, gr
 
 
 @cuda.jit
-def contact_kernel(grid_field, grid_surface, friction, dx, box):
+def contact_kernel(grid_field, grid_surface, friction, stiffness, dx, dt, box):
     i, j, k = box_node(cuda.grid(1), box)
     if i >= 0:
-        d_contact_node_at(i, j, k, grid_field, grid_surface, friction, dx)
+        d_contact_node_at(i, j, k, grid_field, grid_surface, friction, stiffness, dx, dt)
 
 
 @cuda.jit
@@ -452,10 +452,11 @@ class CudaBackend:
                    solver.m.gravity, solver.m.wind_velocity, m.wind_drag, solver.m.origin, m.dx, self.box,
                    state.time + dt, solver.m.colliders, m.wall_boundary, m.wall_friction)
 
-    def contact(self, solver, state):
+    def contact(self, solver, state, dt):
         b = solver.box
         launch(contact_kernel, int((b[1] - b[0]) * (b[3] - b[2]) * (b[5] - b[4])), solver.a.grid_field,
-               solver.a.grid_surface, solver.m.contact_friction, solver.model.dx, self.box)
+               solver.a.grid_surface, solver.m.contact_friction, solver.m.contact_stiffness, solver.model.dx, dt,
+               self.box)
 
     def g2p(self, solver, state, dt) -> tuple[float, int]:
         """G2P, then the one read-back of the step: speed, non-finite count and bounds (crack particles included:
@@ -489,7 +490,7 @@ class CudaBackend:
             launch(grid_update_kernel, nodes_in_box, grid, 0.0, d.gravity, d.wind_velocity, m.wind_drag, d.origin,
                    m.dx, self.box, t_new, d.colliders, m.wall_boundary, m.wall_friction)
         if solver.plan.contact:
-            self.contact(solver, state)
+            self.contact(solver, state, 0.0)
         for grid, s, e in fields:
             launch(advect_kernel, e - s, grid, dt, d.origin, 1.0 / m.dx, t_new, d.colliders, rows(d.pin_mask, s, e),
                    rows(a.particle_crack, s, e), rows(a.particle_x, s, e), rows(a.particle_v, s, e), self.dev_stats)
