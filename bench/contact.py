@@ -3,10 +3,11 @@
 Usage: python bench/contact.py [spheres|rebound|sliding|passing|cost|all] [--radius 5 10] [--steps 20]
 - spheres: two identical elastic spheres (radius in particle spacings, spacing half a cell) meeting head-on at 0.05
   of the P-wave speed (tests/contact_cases.py): where contact starts relative to the geometric touch, momentum,
-  kinetic energy after over before, separation; with separate fields (the default) and one shared field.
+  kinetic energy after over before, separation; with a field per body (the penalty, the default with APIC, and the
+  projection) and one shared field.
 - rebound: an elastic ball (radius in spacings) dropped 0.1 m on a rigid, frictionless floor collider: rebound
   height over drop height (e^2; 1 for an elastic impact), with APIC (simulation.flip 0) and FLIP shares.
-- sliding: a block sliding on an elastic slab with friction 0.3 and 0: deceleration against mu g.
+- sliding: a block sliding on an elastic slab with friction 0.3 and 0: deceleration against mu g (both models).
 - passing: two blocks half a cell apart, one sliding past the other: momentum the resting one picks up.
 - cost: time per step of the sphere pair with one field per body against one shared field, by phase.
 """
@@ -28,7 +29,7 @@ def spheres(radii):
           "KE after / before | energy after / before | gap at end [cells] | wall [s] |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for r in radii:
-        for mode in ("separate", "penalty", "shared"):
+        for mode in ("projection", "penalty", "shared"):
             o = C.sphere_collision(r, mode=mode)
             gap = "none" if o["contact_gap"] is None else f"{o['contact_gap']:+.2f}"
             print(f"| {r:g} | {mode} | {o['particles']} | {o['steps']} | {gap} | {o['momentum']:.1e} | "
@@ -49,18 +50,18 @@ def rebound(radii, flips):
 def sliding():
     print("| contact model | friction | deceleration [m/s^2] | / (mu g) | speed at 0.15 s / v0 |")
     print("|---|---|---|---|---|")
-    for mode in ("separate", "penalty"):
+    for mode in ("projection", "penalty"):
         for mu in (0.3, 0.0):
             o = C.sliding(mu, mode=mode)
             ratio = f"{o['deceleration'] / (mu * C.G):.4f}" if mu else "-"
-            print(f"| {'projection' if mode == 'separate' else mode} | {mu:g} | {o['deceleration']:.4f} | {ratio} | "
+            print(f"| {mode} | {mu:g} | {o['deceleration']:.4f} | {ratio} | "
                   f"{o['v'][-1]:.5f} |", flush=True)
 
 
 def passing():
     print("| fields | momentum picked up / m v0 | moving block's speed / v0 |")
     print("|---|---|---|")
-    for mode in ("separate", "penalty", "shared"):
+    for mode in ("projection", "penalty", "shared"):
         o = C.passing(mode)
         print(f"| {mode} | {o['picked_up']:.2e} | {o['speed']:.5f} |", flush=True)
 

@@ -115,11 +115,12 @@ def contact_friction(scene: Scene) -> np.ndarray:
 
 def contact_stiffness(scene: Scene, bodies) -> np.ndarray:
     """(bodies, bodies) penalty coefficients stiffness x c^2 [m^2/s^2] (c the pair's larger P-wave speed), zero for
-    the projection model; (0, 0) when the bodies share one field."""
+    the projection (contact.model projection, or auto with a FLIP share); (0, 0) when the bodies share one field."""
     n = len(scene.bodies)
     if n < 2 or scene.contact.mode == "shared":
         return np.zeros((0, 0))
-    if scene.contact.model != "penalty":
+    model = scene.contact.model
+    if model == "projection" or (model == "auto" and scene.simulation.flip > 0.0):
         return np.zeros((n, n))
     if scene.simulation.flip > 0.0:
         raise SceneValueError("the penalty contact runs with APIC only (simulation.flip 0): with a FLIP share two "

@@ -33,9 +33,10 @@ def hertz_time(radius: float, closing_speed: float, E: float = 1e5, nu: float = 
 
 
 def contact(mode: str, **extra) -> dict:
-    """The scene's contact section for `mode`: separate or shared (contact.mode), or penalty (separate fields,
-    contact.model penalty)."""
-    return ({"mode": "separate", "model": "penalty"} if mode == "penalty" else {"mode": mode}) | extra
+    """The scene's contact section for `mode`: separate (a field per body, the default contact model) or shared
+    (contact.mode), or penalty or projection (a field per body with that contact.model)."""
+    model = {"penalty": "penalty", "projection": "projection"}.get(mode)
+    return ({"mode": "separate", "model": model} if model else {"mode": mode}) | extra
 
 
 def sphere_pair(spacings: float, closing: float = 0.05, mode: str = "separate", radius: float = 0.1) -> dict:

@@ -23,11 +23,13 @@ def test_one_body_or_shared_mode_allocates_no_fields():
     assert plan.fields["grid_field"][0][0] == 2
 
 
-def test_spheres_bounce_apart_conserving_momentum():
+@pytest.mark.parametrize("mode", ["penalty", "projection"])
+def test_spheres_bounce_apart_conserving_momentum(mode):
     """Two identical elastic spheres (5 spacings in radius) head-on at 0.05 c: contact starts within half a cell
-    of the geometric touch, total momentum is conserved to round-off, and they end moving apart with a gap; in one
-    shared field contact starts most of a cell early. (Kinetic energy kept: bench/contact.py, docs/results.md.)"""
-    o = C.sphere_collision(5)
+    of the geometric touch, total momentum is conserved to round-off, and they end moving apart with a gap, with
+    either contact model (in one shared field contact starts most of a cell early). (Kinetic energy kept:
+    bench/contact.py, docs/results.md.)"""
+    o = C.sphere_collision(5, mode=mode)
     print(o)
     assert o["contact_gap"] is not None and abs(o["contact_gap"]) < 0.5
     assert o["momentum"] < 1e-12
@@ -37,34 +39,34 @@ def test_spheres_bounce_apart_conserving_momentum():
 @pytest.mark.slow
 def test_spheres_of_ten_spacings():
     """The spheres at radius 10 spacings: contact within half a cell of the touch, momentum to round-off, apart at
-    the end. Kinetic energy kept after separation was 44 % (the bodies' own vibration damps it, as in the
-    vibrating bar; 4.6 % with one shared field): asserted above the shared field's tenfold."""
-    o = C.sphere_collision(10)
+    the end, with either model. Kinetic energy kept after separation: 73 % with the penalty, 44 % with the
+    projection, 4.6 % in one shared field (the issue asks for 90 %; not met)."""
+    penalty, projection = C.sphere_collision(10), C.sphere_collision(10, mode="projection")
     shared = C.sphere_collision(10, mode="shared")
-    print(o, shared)
-    assert abs(o["contact_gap"]) < 0.5 and o["momentum"] < 1e-12 and o["apart"] > 0
-    assert o["ke"] > 5 * shared["ke"]
+    print(penalty, projection, shared)
+    for o in (penalty, projection):
+        assert abs(o["contact_gap"]) < 0.5 and o["momentum"] < 1e-12 and o["apart"] > 0
+    assert penalty["ke"] > 0.7 and projection["ke"] > 5 * shared["ke"]
 
 
 def test_penalty_contact_gives_back_the_energy_of_the_impact():
-    """contact.model penalty (an elastic push where the fields' materials overlap) against the projection on the
-    same sphere pair (5 spacings, APIC): contact within half a cell of the touch, momentum to round-off, apart at
-    the end, no energy gained, and most of the kinetic energy back (measured 66.5 % against 7.6 %,
-    bench/contact.py spheres)."""
-    penalty, projection = C.sphere_collision(5, mode="penalty"), C.sphere_collision(5)
+    """The default contact with APIC, the penalty (an elastic push where the fields' materials overlap), against
+    the projection on the same sphere pair (5 spacings): no energy gained, and most of the kinetic energy back
+    (measured 66.8 % against 7.6 %, bench/contact.py spheres)."""
+    penalty, projection = C.sphere_collision(5), C.sphere_collision(5, mode="projection")
     print(penalty, projection)
-    assert abs(penalty["contact_gap"]) < 0.5 and penalty["momentum"] < 1e-12 and penalty["apart"] > 0
-    assert penalty["v_left"] < 0 < penalty["v_right"]
     assert penalty["energy"] < 1.0 and penalty["ke"] > 0.5 > 5 * projection["ke"]
 
 
-def test_penalty_contact_pushes_nothing_across_half_a_cell_and_needs_apic():
-    """Half a cell apart the penalty pushes nothing (the mass centres at a node are farther apart than on the
-    interface of touching bodies); with a FLIP share it is refused (it gained energy there), naming the key."""
+def test_penalty_contact_needs_apic():
+    """The penalty with a FLIP share is refused (it gained energy there), naming the key; contact.model auto (the
+    default) takes the projection with a FLIP share."""
     from pdmpm_cli.errors import InputError
 
-    apart = C.passing("penalty")
-    assert apart["picked_up"] < 1e-9 and apart["speed"] == pytest.approx(1.0, abs=1e-9)
+    flip = C.sphere_pair(3)
+    flip["simulation"]["flip"] = 0.5
+    assert not Sim(flip).model.contact_stiffness.any()
+    assert Sim(C.sphere_pair(3)).model.contact_stiffness.all()
     scene = C.sphere_pair(3, mode="penalty")
     scene["simulation"]["flip"] = 0.5
     with pytest.raises(InputError, match="contact.model"):
@@ -81,11 +83,12 @@ def test_ball_rebounds_to_80_percent_with_a_full_flip_share():
     assert o["rebound"] > 0.8
 
 
+@pytest.mark.parametrize("mode", ["penalty", "projection"])
 @pytest.mark.parametrize("friction", [0.3, 0.0])
-def test_sliding_block_decelerates_at_mu_g(friction):
+def test_sliding_block_decelerates_at_mu_g(friction, mode):
     """A block sliding on an elastic slab: Coulomb friction decelerates it at mu g (within 5 %); frictionless it keeps
     its speed (within 1 %)."""
-    o = C.sliding(friction, duration=0.1)
+    o = C.sliding(friction, duration=0.1, mode=mode)
     print(friction, o["deceleration"], o["v"][-1])
     if friction:
         assert o["deceleration"] == pytest.approx(friction * C.G, rel=0.05)
@@ -94,11 +97,13 @@ def test_sliding_block_decelerates_at_mu_g(friction):
 
 
 def test_bodies_half_a_cell_apart_exert_no_force():
-    """A block sliding past another half a cell away (friction 0.5) moves it not at all; in one shared grid field
-    the grid couples them across the gap."""
-    apart, shared = C.passing("separate"), C.passing("shared")
-    print(apart, shared)
-    assert apart["picked_up"] < 1e-9 and apart["speed"] == pytest.approx(1.0, abs=1e-9)
+    """A block sliding past another half a cell away (friction 0.5) moves it not at all, with either contact model;
+    in one shared grid field the grid couples them across the gap."""
+    shared = C.passing("shared")
+    for mode in ("penalty", "projection"):
+        apart = C.passing(mode)
+        print(mode, apart, shared)
+        assert apart["picked_up"] < 1e-9 and apart["speed"] == pytest.approx(1.0, abs=1e-9)
     assert shared["picked_up"] > 0.05
 
 

@@ -34,9 +34,8 @@ from numba import njit, prange
 from pdmpm_cli.engine.transfer import stencil_on_grid, stencil_with_gradients
 
 CONTACT_GAP = 1.25  # contact acts where the fields' mass centres at a node are closer than this along n [cells]
-PENALTY_GAP = 1.15  # penalty: the mass centres' normal distance at a node on the interface of two touching half
+PENALTY_GAP = 1.0  # penalty: the mass centres' normal distance at a node on the interface of two touching half
 # spaces [cells]; closer than that the materials overlap
-LIGHT = 0.02  # penalty: no push at a node where one side holds less than this share of the mass
 SURFACE = 6  # components of grid_surface: mass gradient, mass-weighted offset of the particles from the node
 
 
@@ -151,6 +150,8 @@ def contact_node_at(i, j, k, grid_field, grid_surface, friction, stiffness, dx, 
         dn = d0 * n0 + d1 * n1 + d2 * n2
         # the distance between this field's mass centre and the others' at the node: the materials meet here
         mo = mt - m
+        if mo <= 0.0:
+            continue  # the others' mass is below this field's rounding: nothing to meet
         e0 = (s0 - grid_surface[f, i, j, k, 3]) / mo - grid_surface[f, i, j, k, 3] / m
         e1 = (s1 - grid_surface[f, i, j, k, 4]) / mo - grid_surface[f, i, j, k, 4] / m
         e2 = (s2 - grid_surface[f, i, j, k, 5]) / mo - grid_surface[f, i, j, k, 5] / m
@@ -167,9 +168,8 @@ def contact_node_at(i, j, k, grid_field, grid_surface, friction, stiffness, dx, 
             # along -n, F = kp m_red overlap / dx^2 (equal and opposite for two fields: their e and n are), whether
             # they approach or separate; friction up to mu F.
             overlap = PENALTY_GAP * dx - math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
-            if overlap <= 0.0 or m < LIGHT * mt or mo < LIGHT * mt:
+            if overlap <= 0.0:
                 continue
-            overlap = min(overlap, 0.5 * dx)
             push = kp * mo / mt * overlap * dt / (dx * dx)  # F dt / m [m/s]
             r = 1.0 if tt <= mu * push else mu * push / tt
             grid_field[f, i, j, k, 1] -= push * n0 + r * t0
