@@ -66,14 +66,16 @@ SYNTHETIC = {
                                           "relaxation_time": 0.002, "relaxing_fraction": 0.8, "break_stretch": 0.005,
                                           "rebuild_distance": 0.05, "bulk_modulus": 3e5},  # rebuilds in 6 steps
                              "velocity": [0.0, -20.0, 0.0]}]),
-    # two blocks meeting edge-on, one per grid field: contact with friction 0.4 where they meet, free elsewhere
+    # two blocks meeting edge-on, one per grid field: the projection contact with friction 0.4 where they meet, free
+    # elsewhere
     "two_bodies": {**scene([{"name": "left",
                              "geometry": {**BLOCK, "shape": {**BLOCK["shape"], "center": [0.37, 0.5, 0.5]}},
                              "material": ELASTIC, "velocity": [3.0, 0.5, 0.0]},
                             {"name": "right",
                              "geometry": {**BLOCK, "shape": {**BLOCK["shape"], "center": [0.6, 0.55, 0.5]}},
                              "material": ELASTIC, "velocity": [-3.0, 0.0, 0.0]}]),
-                   "contact": {"friction": 0.1, "pairs": [{"bodies": ["left", "right"], "friction": 0.4}]}},
+                   "contact": {"model": "projection", "friction": 0.1,
+                               "pairs": [{"bodies": ["left", "right"], "friction": 0.4}]}},
     # a block thrown at a moving mesh collider (a closed icosphere file, its signed distance sampled on a lattice)
     "mesh_collider": scene([{"name": "block", "geometry": BLOCK, "material": ELASTIC, "velocity": [0.0, 6.0, 0.0]}],
                            colliders=[{"type": "mesh", "path": "ball.off", "translate": [0.52, 0.5, 0.5],
