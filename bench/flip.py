@@ -50,7 +50,8 @@ def bar(flip: float, sampling: str, bond_safety: float):
     sim.advance(20.0, record)
     t, v = np.array(t), np.array(v)
     amp = [np.abs(v[(t >= a) & (t < a + 10.0)]).max() for a in (0.0, 10.0)]
-    print(f"| {flip:g} | {sampling} | {bond_safety:g} | {period(t, v):.4f} | {amp[0]:.5f} | {100 * (1 - amp[1] / amp[0]):.2f} % | "
+    print(f"| {flip:g} | {sampling} | {bond_safety:g} | {period(t, v):.4f} | {amp[0]:.5f} | "
+          f"{100 * (1 - amp[1] / amp[0]):.2f} % | "
           f"{energy(sim) / e0:.3f} | {sim.state.step} | {time.perf_counter() - t0:.0f} |", flush=True)
 
 

@@ -34,8 +34,8 @@ from numba import njit, prange
 from pdmpm_cli.engine.transfer import stencil_on_grid, stencil_with_gradients
 
 CONTACT_GAP = 1.25  # contact acts where the fields' mass centres at a node are closer than this along n [cells]
-PENALTY_GAP = 1.0  # penalty: the mass centres' normal distance at a node on the interface of two touching half
-# spaces [cells]; closer than that the materials overlap
+PENALTY_GAP = 1.0  # penalty: the fields' mass centres at a node closer than this overlap [cells] (0.93 on the
+# interface of two touching half spaces, so bodies set down touching start unpushed)
 SURFACE = 6  # components of grid_surface: mass gradient, mass-weighted offset of the particles from the node
 
 
@@ -102,10 +102,12 @@ def surfaces(particle_x, particle_mass, particle_crack, origin, inv_dx, box, pri
 
 @njit(cache=True, inline="always")
 def contact_node_at(i, j, k, grid_field, grid_surface, friction, stiffness, dx, dt):
-    """Node (i, j, k), after every field's grid update: each field that has mass here, approaches the others along
-    its contact normal and meets them (position check) loses its normal velocity relative to the centre of mass,
-    and Coulomb friction (coefficient of the pair with the heaviest other field) acts on the tangential part: it
-    sticks (takes the centre-of-mass velocity) while the tangential slip is at most mu times the normal one."""
+    """Node (i, j, k), after every field's grid update. Projection (stiffness 0 for the pair with the heaviest other
+    field): each field that has mass here, approaches the others along its contact normal and meets them (position
+    check) loses its normal velocity relative to the centre of mass, and Coulomb friction (coefficient of that
+    pair) acts on the tangential part: it sticks (takes the centre-of-mass velocity) while the tangential slip is
+    at most mu times the normal one. Penalty (stiffness > 0): a field whose mass centre is closer to the others'
+    than PENALTY_GAP is pushed back along its normal for dt, with friction up to mu times the push."""
     nf = grid_field.shape[0]
     count = 0
     mt = p0 = p1 = p2 = g0 = g1 = g2 = s0 = s1 = s2 = 0.0

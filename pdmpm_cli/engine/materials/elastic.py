@@ -142,7 +142,8 @@ def elastic_forces(start, end, lam, mu, particle_x, rest_x, particle_volume, bon
     from q, so the pair's forces are equal and opposite to the bit (families are symmetric: build_families stores
     both directions, cuts and fracture remove both). Thread t takes a fixed particle range and scatters into
     force_private[t] only: no races, and a fixed order. Per particle, a gather loop fills the scratch rows
-    (`gather_pairs`), a loop without gathers or sums evaluates the pairs (the loop the compiler can vectorise), and a third loop scatters -G onto the q."""
+    (`gather_pairs`), a loop without gathers or sums evaluates the pairs (the loop the compiler can vectorise), and
+    a third loop scatters -G onto the q."""
     has_active, has_crack = bond_active.shape[0] > 0, particle_crack.shape[0] > 0
     has_ep, has_mu = bond_ep.shape[0] > 0, mu > 0.0
     nt, n = force_private.shape[0], end - start
