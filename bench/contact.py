@@ -1,10 +1,11 @@
 """Contact between bodies: the figures of docs/results.md ('Contact between bodies').
 
 Usage: python bench/contact.py [spheres|rebound|sliding|passing|cost|all] [--radius 5 10] [--steps 20]
-- spheres: two identical elastic spheres (radius in particle spacings, spacing half a cell) meeting head-on at 0.05
-  of the P-wave speed (tests/contact_cases.py): where contact starts relative to the geometric touch, momentum,
-  kinetic energy after over before, separation; with a field per body (the penalty, the default with APIC, and the
-  projection) and one shared field.
+- spheres: two identical elastic spheres (radius in particle spacings, spacing half a cell) meeting head-on at
+  `--closing` (default 0.05) of the P-wave speed (tests/contact_cases.py): where contact starts relative to the
+  geometric touch, the smallest gap, momentum, kinetic energy after over before, separation; with a field per body
+  (the penalty, the default with APIC, and the projection) and one shared field. `--stiffness 0.5 1 2 4` runs the
+  penalty alone at each contact.stiffness.
 - rebound: an elastic ball (radius in spacings) dropped 0.1 m on a rigid, frictionless floor collider: rebound
   height over drop height (e^2; 1 for an elastic impact), with APIC (simulation.flip 0) and FLIP shares.
 - sliding: a block sliding on an elastic slab with friction 0.3 and 0: deceleration against mu g (both models).
@@ -24,17 +25,21 @@ from pdmpm_cli.study.sim import Sim  # noqa: E402
 from tests import contact_cases as C  # noqa: E402
 
 
-def spheres(radii):
-    print("| radius [spacings] | fields | particles | steps | contact starts at gap [cells] | momentum change | "
-          "KE after / before | energy after / before | gap at end [cells] | wall [s] |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+def spheres(radii, closing: float, stiffnesses):
+    runs = [("penalty", k) for k in stiffnesses] or [(m, None) for m in ("projection", "penalty", "shared")]
+    print(f"Closing at {closing:g} of the P-wave speed.")
+    print("| radius [spacings] | fields | contact.stiffness | particles | steps | contact starts at gap [cells] | "
+          "smallest gap [cells] | momentum change | KE after / before | energy after / before | gap at end [cells] | "
+          "wall [s] |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in radii:
-        for mode in ("projection", "penalty", "shared"):
-            o = C.sphere_collision(r, mode=mode)
+        for mode, k in runs:
+            o = C.sphere_collision(r, closing, mode=mode, stiffness=k)
             gap = "none" if o["contact_gap"] is None else f"{o['contact_gap']:+.2f}"
-            print(f"| {r:g} | {mode} | {o['particles']} | {o['steps']} | {gap} | {o['momentum']:.1e} | "
-                  f"{100 * o['ke']:.1f} % | {100 * o['energy']:.1f} % | {o['apart']:+.2f} | {o['seconds']:.0f} |",
-                  flush=True)
+            stiff = "-" if mode != "penalty" else "default" if k is None else f"{k:g}"
+            print(f"| {r:g} | {mode} | {stiff} | {o['particles']} | {o['steps']} | {gap} | {o['smallest_gap']:+.2f} | "
+                  f"{o['momentum']:.1e} | {100 * o['ke']:.1f} % | {100 * o['energy']:.1f} % | {o['apart']:+.2f} | "
+                  f"{o['seconds']:.0f} |", flush=True)
 
 
 def rebound(radii, flips):
@@ -95,10 +100,13 @@ def main():
     ap.add_argument("--radius", type=float, nargs="+", default=[5.0, 10.0], help="sphere radius [spacings]")
     ap.add_argument("--flip", type=float, nargs="+", default=[0.0, 0.95, 0.99, 1.0], help="FLIP shares (rebound)")
     ap.add_argument("--steps", type=int, default=20, help="steps timed per cost row")
+    ap.add_argument("--closing", type=float, default=0.05, help="closing speed over the P-wave speed (spheres)")
+    ap.add_argument("--stiffness", type=float, nargs="*", default=[],
+                    help="penalty contact.stiffness values (spheres; none: the three models at their defaults)")
     args = ap.parse_args()
     np.set_printoptions(precision=4)
     if args.what in ("spheres", "all"):
-        spheres(args.radius)
+        spheres(args.radius, args.closing, args.stiffness)
     if args.what in ("rebound", "all"):
         rebound(args.radius, args.flip)
     if args.what in ("sliding", "all"):

@@ -1,15 +1,19 @@
 """The FLIP share (simulation.flip): the figures of docs/results.md ('FLIP share and MUSL').
 
 Usage: python bench/flip.py [bar|free|spheres] --flip 0 0.95 1 [--radius 10] [--sampling jittered relaxed lattice]
-       [--bond-safety 0.35 0.7 1] [--walls 1]
+       [--bond-safety 0.35 0.7 1] [--step 0.133 0.4] [--walls 1]
 - bar: Sulsky's bar as tests/test_dynamics.py runs it (fixed end, slip walls, 2 periods): period, first amplitude,
   decay of the centre-of-mass velocity's amplitude per period, energy at the end over the initial kinetic energy.
+  `--step k` forces the step to k dx / c on a copy of the Plan (as `pdmpm stability`'s forced rows do; the 0.05 s
+  frames still cap it): how the number of transfers, not the bound that sets it, changes the bar.
 - free: the same column free at both ends in its first mode (period 2 L / c = 5 s), 20 s: period and decay per
   period of its ends' velocity, and energy (kinetic with APIC's affine part, plus strain) at the end over the start.
 - spheres: the sphere pair of bench/contact.py (tests/contact_cases.py) with the FLIP share.
 """
 
 import argparse
+import dataclasses
+import math
 import sys
 import time
 from pathlib import Path
@@ -33,11 +37,14 @@ def energy(sim: Sim) -> float:
     return sim.solver.kinetic_energy(s) + sim.solver.strain_energy(s) + affine
 
 
-def bar(flip: float, sampling: str, bond_safety: float):
+def bar(flip: float, sampling: str, bond_safety: float, step: float | None = None):
     d = with_flip(bar_scene(1.25, 2.0), flip)
     d["bodies"][0]["geometry"]["sampling"] = sampling
     d["simulation"]["bond_safety"] = bond_safety
     sim = Sim(d)
+    if step is not None:  # forced: k dx / c in place of the Plan's bounds
+        sim.plan = sim.solver.plan = dataclasses.replace(sim.plan, dt_max=step * sim.model.dx / sim.plan.wave_speed,
+                                                         dt_cfl=math.inf, dt_bond=math.inf)
     bar_start(sim)
     mass = sim.model.particle_mass.sum()
     e0 = energy(sim)
@@ -50,7 +57,8 @@ def bar(flip: float, sampling: str, bond_safety: float):
     sim.advance(20.0, record)
     t, v = np.array(t), np.array(v)
     amp = [np.abs(v[(t >= a) & (t < a + 10.0)]).max() for a in (0.0, 10.0)]
-    print(f"| {flip:g} | {sampling} | {bond_safety:g} | {period(t, v):.4f} | {amp[0]:.5f} | "
+    forced = "-" if step is None else f"{step:g}"
+    print(f"| {flip:g} | {sampling} | {bond_safety:g} | {forced} | {period(t, v):.4f} | {amp[0]:.5f} | "
           f"{100 * (1 - amp[1] / amp[0]):.2f} % | "
           f"{energy(sim) / e0:.3f} | {sim.state.step} | {time.perf_counter() - t0:.0f} |", flush=True)
 
@@ -98,12 +106,14 @@ def main():
     ap.add_argument("--sampling", nargs="+", default=["jittered"], help="bar, free: the column's sampling")
     ap.add_argument("--bond-safety", type=float, nargs="+", default=[0.7],
                     help="bar: simulation.bond_safety (the step, hence the number of transfers)")
+    ap.add_argument("--step", type=float, nargs="+", default=[None],
+                    help="bar: force the step to these multiples of dx / c (default: the Plan's)")
     ap.add_argument("--walls", type=int, default=1, help="free: 1 keeps the slip walls on the long sides")
     a = ap.parse_args()
     if a.what == "bar":
-        print("| flip | sampling | bond_safety | period [s] | v_com amplitude | decay per period | energy end / start | "
-              "steps | wall [s] |")
-        print("|---|---|---|---|---|---|---|---|---|")
+        print("| flip | sampling | bond_safety | forced step [dx/c] | period [s] | v_com amplitude | decay per period | "
+              "energy end / start | steps | wall [s] |")
+        print("|---|---|---|---|---|---|---|---|---|---|")
     elif a.what == "free":
         print("| flip | sampling | walls | period [s] | end-velocity decay per period | energy end / start | steps |")
         print("|---|---|---|---|---|---|---|")
@@ -115,7 +125,8 @@ def main():
         for sampling in a.sampling:
             if a.what == "bar":
                 for safety in a.bond_safety:
-                    bar(flip, sampling, safety)
+                    for step in a.step:
+                        bar(flip, sampling, safety, step)
             elif a.what == "free":
                 free(flip, sampling, bool(a.walls))
         if a.what == "spheres":

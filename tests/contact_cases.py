@@ -4,6 +4,7 @@ sliding on another body (Coulomb friction decelerates it at mu g), two bodies pa
 Scenes as dicts, measures from particle positions and velocities. Used by tests/test_contact.py (reduced and slow
 versions) and bench/contact.py (the figures in docs/results.md)."""
 
+import math
 import time
 
 import numpy as np
@@ -39,10 +40,12 @@ def contact(mode: str, **extra) -> dict:
     return ({"mode": "separate", "model": model} if model else {"mode": mode}) | extra
 
 
-def sphere_pair(spacings: float, closing: float = 0.05, mode: str = "separate", radius: float = 0.1) -> dict:
+def sphere_pair(spacings: float, closing: float = 0.05, mode: str = "separate", radius: float = 0.1,
+                stiffness: float | None = None) -> dict:
     """Two identical elastic spheres of `spacings` particle spacings in radius (spacing half a cell, relaxed
     sampling), closing along x at `closing` x the P-wave speed c (each at half of it), released one cell apart,
-    without gravity: the approach, the contact (Hertz's duration) and a flight apart of half that."""
+    without gravity: the approach, the contact (Hertz's duration) and a flight apart of half that. `stiffness`
+    sets contact.stiffness (the penalty's; None: the default)."""
     h = radius / spacings
     cell = 2 * h
     c = wave_speed()
@@ -56,7 +59,7 @@ def sphere_pair(spacings: float, closing: float = 0.05, mode: str = "separate", 
         "grid": {"cell_size": cell, "domain": {"min": [-x - 2 * radius - pad, -radius - pad, -radius - pad],
                                                "max": [x + 2 * radius + pad, radius + pad, radius + pad]}},
         "gravity": [0, 0, 0],
-        "contact": contact(mode),
+        "contact": contact(mode, **({} if stiffness is None else {"stiffness": stiffness})),
         "bodies": [{"name": name, "velocity": [s * v, 0, 0],
                     "geometry": {"mode": "cloud", "spacing": h,
                                  "shape": {"type": "sphere", "center": [-s * x, 0, 0], "radius": radius}},
@@ -70,13 +73,14 @@ def body_velocity(sim: Sim, body: int) -> np.ndarray:
     return m[b.start:b.end] @ sim.state.particle_v[b.start:b.end] / m[b.start:b.end].sum()
 
 
-def sphere_collision(spacings: float, closing: float = 0.05, mode: str = "separate") -> dict:
+def sphere_collision(spacings: float, closing: float = 0.05, mode: str = "separate",
+                     stiffness: float | None = None) -> dict:
     """Run the sphere pair. Returns: contact_gap, the distance between the surfaces (outermost particle centres
     plus half a spacing each) when the approach speed has fallen by 0.1 % [cells] (0: the geometric touch; None:
-    no contact); ke, the bodies' translational kinetic energy after over before; energy, kinetic + strain energy
+    no contact); smallest_gap, that distance at its smallest over the run [cells]; ke, the bodies' translational kinetic energy after over before; energy, kinetic + strain energy
     after over before; momentum, the largest change of the total momentum over one body's m v; apart, the surface
     gap at the end [cells] and the speeds of the two bodies' centres of mass [m/s]."""
-    sim = Sim(sphere_pair(spacings, closing, mode))
+    sim = Sim(sphere_pair(spacings, closing, mode, stiffness=stiffness))
     m, s = sim.model, sim.state
     (a0, a1), (b0, b1) = m.body_ranges
     mass = m.particle_mass[a0:a1].sum()
@@ -90,9 +94,10 @@ def sphere_collision(spacings: float, closing: float = 0.05, mode: str = "separa
 
     e0 = sim.solver.kinetic_energy(s) + sim.solver.strain_energy(s)
     k0, p0 = translational(), sim.momentum()
-    out = {"contact_gap": None, "momentum": 0.0}
+    out = {"contact_gap": None, "momentum": 0.0, "smallest_gap": math.inf}
 
     def watch(state, dt):
+        out["smallest_gap"] = min(out["smallest_gap"], surface_gap())
         if out["contact_gap"] is None and body_velocity(sim, 0)[0] - body_velocity(sim, 1)[0] < (1 - 1e-3) * 2 * v:
             out["contact_gap"] = surface_gap()
         out["momentum"] = max(out["momentum"], float(np.abs(sim.momentum() - p0).max() / (mass * v)))
