@@ -5,7 +5,8 @@ Usage: python bench/contact.py [spheres|rebound|sliding|passing|cost|all] [--rad
   `--closing` (default 0.05) of the P-wave speed (tests/contact_cases.py): where contact starts relative to the
   geometric touch, the smallest gap, momentum, kinetic energy after over before, separation; with a field per body
   (the penalty, the default with APIC, and the projection) and one shared field. `--stiffness 0.5 1 2 4` runs the
-  penalty alone at each contact.stiffness.
+  penalty alone at each contact.stiffness; `--step 0.4 0.8` forces the step to those multiples of dx / c (the
+  number of transfers, against APIC's loss).
 - rebound: an elastic ball (radius in spacings) dropped 0.1 m on a rigid, frictionless floor collider: rebound
   height over drop height (e^2; 1 for an elastic impact), with APIC (simulation.flip 0) and FLIP shares.
 - sliding: a block sliding on an elastic slab with friction 0.3 and 0: deceleration against mu g (both models).
@@ -25,21 +26,23 @@ from pdmpm_cli.study.sim import Sim  # noqa: E402
 from tests import contact_cases as C  # noqa: E402
 
 
-def spheres(radii, closing: float, stiffnesses):
+def spheres(radii, closing: float, stiffnesses, steps):
     runs = [("penalty", k) for k in stiffnesses] or [(m, None) for m in ("projection", "penalty", "shared")]
     print(f"Closing at {closing:g} of the P-wave speed.")
-    print("| radius [spacings] | fields | contact.stiffness | particles | steps | contact starts at gap [cells] | "
-          "smallest gap [cells] | momentum change | KE after / before | energy after / before | gap at end [cells] | "
-          "wall [s] |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| radius [spacings] | fields | contact.stiffness | step [dx/c] | particles | steps | "
+          "contact starts at gap [cells] | smallest gap [cells] | momentum change | KE after / before | "
+          "energy after / before | gap at end [cells] | wall [s] |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in radii:
-        for mode, k in runs:
-            o = C.sphere_collision(r, closing, mode=mode, stiffness=k)
+        for (mode, k), step in ((run, step) for run in runs for step in steps):
+            o = C.sphere_collision(r, closing, mode=mode, stiffness=k, step=step)
             gap = "none" if o["contact_gap"] is None else f"{o['contact_gap']:+.2f}"
             stiff = "-" if mode != "penalty" else "default" if k is None else f"{k:g}"
-            print(f"| {r:g} | {mode} | {stiff} | {o['particles']} | {o['steps']} | {gap} | {o['smallest_gap']:+.2f} | "
-                  f"{o['momentum']:.1e} | {100 * o['ke']:.1f} % | {100 * o['energy']:.1f} % | {o['apart']:+.2f} | "
-                  f"{o['seconds']:.0f} |", flush=True)
+            forced = "Plan's" if step is None else f"{step:g}"
+            print(f"| {r:g} | {mode} | {stiff} | {forced} | {o['particles']} | {o['steps']} | {gap} | "
+                  f"{o['smallest_gap']:+.2f} | {o['momentum']:.1e} | {100 * o['ke']:.1f} % | "
+                  f"{100 * o['energy']:.1f} % | "
+                  f"{o['apart']:+.2f} | {o['seconds']:.0f} |", flush=True)
 
 
 def rebound(radii, flips):
@@ -103,10 +106,12 @@ def main():
     ap.add_argument("--closing", type=float, default=0.05, help="closing speed over the P-wave speed (spheres)")
     ap.add_argument("--stiffness", type=float, nargs="*", default=[],
                     help="penalty contact.stiffness values (spheres; none: the three models at their defaults)")
+    ap.add_argument("--step", type=float, nargs="+", default=[None],
+                    help="spheres: force the step to these multiples of dx / c (default: the Plan's)")
     args = ap.parse_args()
     np.set_printoptions(precision=4)
     if args.what in ("spheres", "all"):
-        spheres(args.radius, args.closing, args.stiffness)
+        spheres(args.radius, args.closing, args.stiffness, args.step)
     if args.what in ("rebound", "all"):
         rebound(args.radius, args.flip)
     if args.what in ("sliding", "all"):

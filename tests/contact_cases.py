@@ -74,13 +74,16 @@ def body_velocity(sim: Sim, body: int) -> np.ndarray:
 
 
 def sphere_collision(spacings: float, closing: float = 0.05, mode: str = "separate",
-                     stiffness: float | None = None) -> dict:
-    """Run the sphere pair. Returns: contact_gap, the distance between the surfaces (outermost particle centres
-    plus half a spacing each) when the approach speed has fallen by 0.1 % [cells] (0: the geometric touch; None:
-    no contact); smallest_gap, that distance at its smallest over the run [cells]; ke, the bodies' translational kinetic energy after over before; energy, kinetic + strain energy
-    after over before; momentum, the largest change of the total momentum over one body's m v; apart, the surface
-    gap at the end [cells] and the speeds of the two bodies' centres of mass [m/s]."""
+                     stiffness: float | None = None, step: float | None = None) -> dict:
+    """Run the sphere pair. Returns: contact_gap, the distance between the surfaces (outermost particle centres plus
+    half a spacing each) when the approach speed has fallen by 0.1 % [cells] (0: the geometric touch; None: no
+    contact); smallest_gap, that distance at its smallest over the run [cells]; ke, the bodies' translational kinetic
+    energy after over before; energy, kinetic + strain energy after over before; momentum, the largest change of the
+    total momentum over one body's m v; apart, the surface gap at the end [cells] and the speeds of the two bodies'
+    centres of mass [m/s]."""
     sim = Sim(sphere_pair(spacings, closing, mode, stiffness=stiffness))
+    if step is not None:  # forced: step dx / c (bench/contact.py --step)
+        sim.force_step(step)
     m, s = sim.model, sim.state
     (a0, a1), (b0, b1) = m.body_ranges
     mass = m.particle_mass[a0:a1].sum()

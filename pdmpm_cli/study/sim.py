@@ -1,5 +1,7 @@
 """A scene given as a dict, prepared and stepped in memory: no scene file, no output folder."""
 
+import dataclasses
+import math
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +18,12 @@ class Sim:
         self.prep = prepare_scene(self.scene, Path(path))
         self.plan = self.prep.plan
         self.state, self.solver = start_in_memory(self.prep)
+
+    def force_step(self, k: float):
+        """Step at k dx / c (c the fastest P-wave speed) in place of the Plan's bounds, frames still capping it: for
+        studies of the step itself (`pdmpm run` always takes the Plan's). Replaces this Sim's Plan by a copy."""
+        self.plan = self.solver.plan = dataclasses.replace(
+            self.plan, dt_max=k * self.model.dx / self.plan.wave_speed, dt_cfl=math.inf, dt_bond=math.inf)
 
     @property
     def model(self):
