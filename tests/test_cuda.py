@@ -114,6 +114,13 @@ def test_viscoelastic_splat_rebuilds_alike(compared):
     assert_same(row)
 
 
+def test_liquid_shift_alike(compared):
+    """The particle shift (shift:viscoelastic) moves the particles alike on both backends."""
+    row = compared["liquid_shift"]
+    assert row["phases"][-2:] == ["g2p", "shift:viscoelastic"] and row["shifted"] > 1e-4
+    assert_same(row)
+
+
 @pytest.mark.parametrize("case", BUNDLED)
 def test_bundled_scene_matches_cpu(compared, case):
     """Every bundled scene, fracture (wall_break, thrown hard so that bonds break within the steps) and
