@@ -24,7 +24,9 @@ sheared layer it even squeezes the liquid. So the bonds keep only their deviator
 a pressure p = K (1 - J) from each particle's volume ratio J, advanced by the grid velocity's divergence
 (J <- J (1 + dt tr C), C the APIC velocity gradient; Stomakhin et al. 2014, Hu et al. 2018), acting through the
 grid as the MLS-MPM stress term (Hu et al. 2018). It cannot drift, and K defaults to the weakly compressible rule
-(sound speed ten times the largest flow speed, Monaghan 1994).
+(sound speed ten times the largest flow speed, Monaghan 1994). The pressure sees volume at the scale of a cell, so
+a liquid's particles are also shifted apart after each step's motion where they crowd closer than the spacing
+(`shift`, Lind et al. 2012; docs/method.md).
 """
 
 import math
@@ -76,8 +78,9 @@ class Schema(Strict):
     shift_distance: float | None = Doc(
         None, ge=0, le=1.5, description="Particle shifting (Lind et al. 2012): after each step's motion every "
         "particle is pushed apart from the neighbours of its family closer than this multiple of the particle "
-        "spacing h (the rest spacing is not pushed), except along the normal of a free surface or wall, so a "
-        "flowing liquid's particles do not pair up below the cell size; 0: off. None: 1 for a liquid "
+        "spacing h (the rest spacing is not pushed), except along the normal of a free surface or wall, and moves "
+        "by that push less its family's mean push, so a flowing liquid's particles do not pair up below the cell "
+        "size; positions only (velocity and J stay). 0: off. None: 1 for a liquid "
         "(relaxing_fraction 1), 0 otherwise. The neighbours are the family's: a reach beyond horizon - 2 "
         "rebuild_distance can miss a pair that closed in since the last rebuild [-].")
 
