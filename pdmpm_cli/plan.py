@@ -103,8 +103,11 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
     # Crack particles meet the grid's material after its update and before intact particles read it back.
     contact = len(model.contact_friction) > 0
     remap = model.flip > 0.0
+    moved = [k for k in used if k.after_move is not None
+             and any(k.moves(b.params) for kb, b in zip(kinds, model.bodies) if kb is k)]  # e.g. shift:viscoelastic
     phases += ["p2g", "grid_update", *(["contact"] if contact else []), *(["crack"] if fracture else []), "g2p",
-               *(["remap"] if remap else []), *(["fracture"] if fracture else [])]
+               *(["remap"] if remap else []), *(f"{k.after_move.__name__}:{k.name}" for k in moved),
+               *(["fracture"] if fracture else [])]
     threads = numba.get_num_threads() if sim.backend == "cpu" else 0
     n, nb = disc.n_particles, disc.n_bonds
     fields = array_shapes(state_fields(model, sim.backend), model, nb, threads)

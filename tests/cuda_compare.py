@@ -66,6 +66,14 @@ SYNTHETIC = {
                                           "relaxation_time": 0.002, "relaxing_fraction": 0.8, "break_stretch": 0.005,
                                           "rebuild_distance": 0.05, "bulk_modulus": 3e5},  # rebuilds in 6 steps
                              "velocity": [0.0, -20.0, 0.0]}]),
+    # a liquid block (the whole shear relaxing) on a jittered lattice, so that neighbours closer than the spacing
+    # are shifted apart from the first step (shift:viscoelastic), falling onto the floor
+    "liquid_shift": scene([{"name": "liquid", "geometry": {**BLOCK, "sampling": "jittered",
+                                                           "shape": {"type": "box", "center": [0.5, 0.3, 0.5],
+                                                                     "size": [0.3, 0.15, 0.2]}},
+                            "material": {"model": "viscoelastic", "density": 1000.0, "lam": 0.0, "mu": 1e4,
+                                         "relaxation_time": 0.002, "relaxing_fraction": 1.0, "bulk_modulus": 3e5},
+                            "velocity": [0.0, -5.0, 0.0]}]),
     # two blocks meeting edge-on, one per grid field: the projection contact with friction 0.4 where they meet, free
     # elsewhere
     "two_bodies": {**scene([{"name": "left",
@@ -188,6 +196,8 @@ def compare(name: str, steps: int) -> dict:
     if a.has("bond_active"):
         out["broken"] = int((a.bond_active == 0).sum())
         out["crack_particles"] = int(a.particle_crack.sum())
+    if a.has("particle_shift"):  # the last step's particle shift, in cells
+        out["shifted"] = float(np.abs(a.particle_shift).max() / model.dx)
     if a.has("bond_len0"):
         out["rebuilt"] = bool(np.any(a.particle_x_rebuild != model.rest_x))
         out["broken"] = int((a.bond_len0 < 0).sum())

@@ -114,6 +114,13 @@ def test_viscoelastic_splat_rebuilds_alike(compared):
     assert_same(row)
 
 
+def test_liquid_shift_alike(compared):
+    """The particle shift (shift:viscoelastic) moves the particles alike on both backends."""
+    row = compared["liquid_shift"]
+    assert row["phases"][-2:] == ["g2p", "shift:viscoelastic"] and row["shifted"] > 1e-4
+    assert_same(row)
+
+
 @pytest.mark.parametrize("case", BUNDLED)
 def test_bundled_scene_matches_cpu(compared, case):
     """Every bundled scene, fracture (wall_break, thrown hard so that bonds break within the steps) and
@@ -135,6 +142,7 @@ def test_kernels_compile_for_an_h100():
     compiled = {line.split(":")[0] for line in r.stdout.splitlines()}
     assert compiled == {"averaged_deformation_at", "elastic_force_at", "dilatation_at", "return_map_at",
                         "incremental_dilatation_at", "viscoelastic_force_at", "volume_pressure_at", "copy_row_at",
+                        "shift_at", "apply_shift_at",
                         "zero_box", "p2g_kernel", "grid_update_kernel", "reset_stats", "g2p_kernel",
                         "crack_contact_kernel", "crack_update_kernel", "criterion_at", "zero_cells", "count_cells",
                         "cell_fraction", "surface_kernel", "contact_kernel", "advect_kernel"}

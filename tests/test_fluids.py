@@ -43,6 +43,50 @@ def test_pressure_term_is_the_stress_virial():
     assert virial == pytest.approx(3.0 * dt * volume[0] * j[0] * pressure, rel=1e-9)
 
 
+def shift_once(sim):
+    """One particle shift (shift:viscoelastic) of the first body on the current positions; returns the raw shifts."""
+    sim.solver.kinds[0].after_move(sim.solver, 0, 0.0)
+    return sim.state.particle_shift.copy()
+
+
+def test_shift_leaves_a_relaxed_lattice_and_separates_a_pair(sim_factory):
+    """The particle shift (Lind et al. 2012, docs/method.md): a lattice at the rest spacing is not moved at all; an
+    interior particle moved 0.6 h towards its neighbour is pushed back apart, and x_prev moves with it (the bonds see
+    no increment); a top-surface particle whose neighbour below moved up to 0.5 h gets no shift along the surface's
+    normal, while that neighbour is pushed down."""
+    sim = sim_factory(base=F.column(1000.0, 0.1, tau=0.001))
+    h = sim.model.bodies[0].spacing
+    x0 = sim.state.particle_x.copy()
+    shift_once(sim)
+    assert np.array_equal(sim.state.particle_x, x0)
+    p = int(np.argmin(np.linalg.norm(x0 - x0.mean(axis=0), axis=1)))  # an interior particle
+    q = int(np.argmin(np.linalg.norm(x0 - (x0[p] + [h, 0, 0]), axis=1)))
+    sim.state.particle_x[p] += [0.6 * h, 0, 0]
+    sim.state.particle_x_prev[:] = sim.state.particle_x
+    shift_once(sim)
+    x = sim.state.particle_x
+    assert np.linalg.norm(x[q] - x[p]) > 0.4 * h * 1.05
+    np.testing.assert_array_equal(sim.state.particle_x_prev, x)
+    top = int(np.argmax(np.where(np.abs(x0[:, 0] - x0[p, 0]) + np.abs(x0[:, 2] - x0[p, 2]) < 1e-9, x0[:, 1], -1)))
+    below = int(np.argmin(np.linalg.norm(x0 - (x0[top] - [0, h, 0]), axis=1)))
+    sim.state.particle_x[:] = x0
+    sim.state.particle_x[below, 1] += 0.5 * h
+    raw = shift_once(sim)
+    assert abs(raw[top, 1]) < 1e-12 * h and raw[below, 1] < 0.0
+
+
+def test_only_liquids_pay_for_the_shift(sim_factory):
+    """The Plan lists shift:viscoelastic for a liquid (relaxing_fraction 1) only: not for a body that keeps some
+    shear (cream) or sets shift_distance 0, nor for an elastic scene."""
+    scene = F.column(1000.0, 0.1, tau=0.001)
+    assert "shift:viscoelastic" in sim_factory(base=scene).plan.phases
+    for change in ({"relaxing_fraction": 0.5}, {"shift_distance": 0.0}):
+        other = merge(scene, {"bodies": [merge(scene["bodies"][0], {"material": change})]})
+        sim = sim_factory(base=other)
+        assert not any(p.startswith("shift") for p in sim.plan.phases) and not sim.solver.movers
+    assert not any(p.startswith("shift") for p in sim_factory().plan.phases)
+
+
 def column_history(sim_factory, scene, samples=10):
     """Height, volume and nearest spacing relative to the start, at `samples` times over the run."""
     sim = sim_factory(base=scene)

@@ -2,7 +2,8 @@
 
 The step reads top to bottom as the paper's loop: bond forces (eq. 4, then each body's material), P2G, the grid
 update, contact between bodies (ours: engine/contact.py), the crack particles' own integrator and G2P, with a FLIP
-share MUSL's position pass (ours: engine/transfer.py, advect_at), then fracture. A part a scene does not need is
+share MUSL's position pass (ours: engine/transfer.py, advect_at), a material's pass on the moved particles (ours: a
+liquid's particle shift), then fracture. A part a scene does not need is
 skipped by a switch the Plan set once (`plan.fbar`, `plan.fracture`, `plan.contact`, `plan.remap`); materials are
 called through their registry entries, never by type. The backend (engine/backends) runs each part on the CPU or
 the GPU."""
@@ -86,6 +87,8 @@ class Solver:
         self.kinds = [MATERIALS[b.kind] for b in model.bodies]
         self.fbar_bodies = [i for i, (k, b) in enumerate(zip(self.kinds, model.bodies)) if k.uses_fbar(b.params)]
         self.fracture_bodies = [i for i, b in enumerate(model.bodies) if b.fracture is not None]
+        self.movers = [i for i, (k, b) in enumerate(zip(self.kinds, model.bodies))
+                       if k.after_move is not None and k.moves(b.params)]  # bodies whose material acts after G2P
         self.phase_time = defaultdict(float)  # seconds spent in each part of the step, for benchmarks
         self.clock = time.perf_counter  # the phase timer (benchmarks on a busy machine use process time)
         self.profile = profile  # the CUDA backend synchronises after every part, so the times are the GPU's
@@ -124,6 +127,10 @@ class Solver:
                 vmax, bad = self.backend.remap(self, state, dt)
                 if bad:
                     self.fail_nonfinite(state)
+        for i in self.movers:
+            kind = self.kinds[i]
+            with self.timed(f"{kind.after_move.__name__}:{kind.name}"):
+                kind.after_move(self, i, dt)
         state.vmax = max(vmax, crack_vmax)
         if self.plan.fracture:
             with self.timed("fracture"):

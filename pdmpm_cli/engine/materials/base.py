@@ -29,6 +29,9 @@ class MaterialKind:
     fields: tuple[Field, ...] = ()  # the material's own arrays
     before_forces: Callable | None = None  # e.g. the plastic return map
     after_forces: Callable | None = None  # e.g. rebuilding the families of a flowing body
+    after_move: Callable | None = None  # after the particles moved (G2P), e.g. a liquid's particle shift
+    moves: Callable[[Any], bool] = lambda params: True  # whether after_move has work for a body with these params
+    # (the Plan lists its phase, and the solver calls it, only for those bodies)
     start: Callable | None = None  # (solver, body): initial values of its arrays, on the host State
     born: Callable | None = None  # (solver, state, body, first): values of particles first.. an emitter just
     # appended (families with their neighbours), on the host State; None: the material cannot be emitted

@@ -24,7 +24,9 @@ sheared layer it even squeezes the liquid. So the bonds keep only their deviator
 a pressure p = K (1 - J) from each particle's volume ratio J, advanced by the grid velocity's divergence
 (J <- J (1 + dt tr C), C the APIC velocity gradient; Stomakhin et al. 2014, Hu et al. 2018), acting through the
 grid as the MLS-MPM stress term (Hu et al. 2018). It cannot drift, and K defaults to the weakly compressible rule
-(sound speed ten times the largest flow speed, Monaghan 1994).
+(sound speed ten times the largest flow speed, Monaghan 1994). The pressure sees volume at the scale of a cell, so
+a liquid's particles are also shifted apart after each step's motion where they crowd closer than the spacing
+(`shift`, Lind et al. 2012; docs/method.md).
 """
 
 import math
@@ -73,6 +75,14 @@ class Schema(Strict):
         "the material's whole bulk response. None: the weakly compressible rule K = density (10 v)^2, v the "
         "largest speed the body can reach (its initial speed and a fall over the domain's height, the colliders' "
         "and the wind's speed), so volume changes stay near 1 %; at least lam + 2 mu / 3 [Pa].")
+    shift_distance: float | None = Doc(
+        None, ge=0, le=1.5, description="Particle shifting (Lind et al. 2012): after each step's motion every "
+        "particle is pushed apart from the neighbours of its family closer than this multiple of the particle "
+        "spacing h (the rest spacing is not pushed), except along the normal of a free surface or wall, and moves "
+        "by that push less its family's mean push, so a flowing liquid's particles do not pair up below the cell "
+        "size; positions only (velocity and J stay). 0: off. None: 1 for a liquid "
+        "(relaxing_fraction 1), 0 otherwise. The neighbours are the family's: a reach beyond horizon - 2 "
+        "rebuild_distance can miss a pair that closed in since the last rebuild [-].")
 
 
 @dataclass(frozen=True)
@@ -85,12 +95,16 @@ class Params:
     break_stretch: float  # [-] (inf: never)
     rebuild_distance: float  # [spacings]
     bulk_modulus: float  # K of the volume-ratio pressure [Pa] (nan: from the flow speed, `with_flow_speed`)
+    shift_distance: float = 0.0  # particle shift's reach [spacings] (0: no shift)
 
 
 def params(section) -> Params:
+    shift = section.shift_distance
+    if shift is None:
+        shift = 1.0 if section.relaxing_fraction == 1.0 else 0.0
     return Params(section.density, section.lam, section.mu, section.relaxation_time, section.relaxing_fraction,
                   section.break_stretch or math.inf, section.rebuild_distance,
-                  math.nan if section.bulk_modulus is None else section.bulk_modulus)
+                  math.nan if section.bulk_modulus is None else section.bulk_modulus, shift)
 
 
 SOUND_OVER_FLOW = 10.0  # weakly compressible rule: sound speed >= 10 x flow speed keeps |J - 1| ~ (v / c)^2 ~ 1 %
@@ -254,7 +268,129 @@ def volume_pressures(start, end, bulk, dt_prev, dt, inv_dx, pin_mask, particle_v
                            particle_C)
 
 
+SHIFT_STRENGTH = 0.1  # a pair closer than the reach r_s separates by up to 2 x this x r_s per step
+SHIFT_CAP = 0.1  # largest shift of one particle in one step [spacings]
+SURFACE_OFFSET = 0.1  # a particle whose neighbours' weighted centroid lies this fraction of the horizon away from it
+# is at a free surface or a wall (0 in a lattice's bulk; 0.2-0.4 on its faces; below 0.1 in a disordered bulk)
+
+
+@njit(cache=True)
+def shift_at(p, reach, delta, strength, cap, surface, pin_mask, particle_x, particle_volume, bond_start, bond_nbr,
+             particle_shift):
+    """Particle p's shift -> particle_shift[p] (Lind et al. 2012): dx_p = -D grad C_p, C the concentration of a kernel
+    W = (1 - r / r_s)^3 whose support r_s (reach) is within the rest spacing, so a relaxed lattice is not pushed:
+    dx_p = strength r_s sum_q (V_q / V_p) (1 - r / r_s)^2 (x_p - x_q) / r, capped at `cap`. At a free surface or a
+    wall (the family's weighted centroid, weight 1 - r / delta, more than `surface` from p) the component along the
+    normal (away from the centroid) is dropped: the shift rearranges a surface along it and never swells it. The
+    neighbours are p's family (the pairs within delta at the last rebuild, hence every pair now within
+    delta - 2 rebuild_distance h). apply_shift_at then removes the family's mean. Pinned particles get none."""
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    c0 = 0.0
+    c1 = 0.0
+    c2 = 0.0
+    wsum = 0.0
+    vp = particle_volume[p]
+    for b in range(bond_start[p], bond_start[p + 1]):
+        q = bond_nbr[b]
+        e0, e1, e2, l = bond_vector(particle_x, p, q)
+        if l < delta:
+            w = 1.0 - l / delta
+            c0 += w * e0
+            c1 += w * e1
+            c2 += w * e2
+            wsum += w
+        if l > 0.0 and l < reach:
+            k = 1.0 - l / reach
+            g = k * k * particle_volume[q] / (vp * l)
+            s0 -= g * e0
+            s1 -= g * e1
+            s2 -= g * e2
+    f = strength * reach
+    s0 *= f
+    s1 *= f
+    s2 *= f
+    if wsum > 0.0:
+        c0 /= wsum
+        c1 /= wsum
+        c2 /= wsum
+        c = math.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+        if c > surface:
+            n0 = c0 / c
+            n1 = c1 / c
+            n2 = c2 / c
+            dot = s0 * n0 + s1 * n1 + s2 * n2
+            s0 -= dot * n0
+            s1 -= dot * n1
+            s2 -= dot * n2
+    size = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+    if size > cap:
+        s0 *= cap / size
+        s1 *= cap / size
+        s2 *= cap / size
+    if pin_mask.shape[0] > 0 and pin_mask[p] != 0:
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+    particle_shift[p, 0] = s0
+    particle_shift[p, 1] = s1
+    particle_shift[p, 2] = s2
+
+
+@njit(parallel=True, cache=True)
+def shifts(start, end, reach, delta, strength, cap, surface, pin_mask, particle_x, particle_volume, bond_start,
+           bond_nbr, particle_shift):
+    """`shift_at` for particles start..end-1."""
+    for p in prange(start, end):
+        shift_at(p, reach, delta, strength, cap, surface, pin_mask, particle_x, particle_volume, bond_start, bond_nbr,
+                 particle_shift)
+
+
+@njit(cache=True)
+def apply_shift_at(p, delta, pin_mask, bond_start, bond_nbr, bond_len0, particle_shift, particle_x, particle_x_prev):
+    """x_p and x_prev_p move by p's shift less the family's weighted mean shift (weight 1 - L0 / delta over intact
+    bonds, p itself weight 1): only the part that rearranges p among its neighbours, none that carries particles
+    across the family's scale and so packs them against a surface or a wall. x_prev moves too, so the next step's
+    bond increment does not see the shift: it corrects where the particles sample the liquid and is no deformation
+    (J and the velocity stay). Pinned particles stay."""
+    if pin_mask.shape[0] > 0 and pin_mask[p] != 0:
+        return
+    m0 = particle_shift[p, 0]
+    m1 = particle_shift[p, 1]
+    m2 = particle_shift[p, 2]
+    wsum = 1.0
+    for b in range(bond_start[p], bond_start[p + 1]):
+        l0 = bond_len0[b]
+        if l0 > 0.0:
+            q = bond_nbr[b]
+            w = influence(l0, delta)
+            m0 += w * particle_shift[q, 0]
+            m1 += w * particle_shift[q, 1]
+            m2 += w * particle_shift[q, 2]
+            wsum += w
+    d0 = particle_shift[p, 0] - m0 / wsum
+    d1 = particle_shift[p, 1] - m1 / wsum
+    d2 = particle_shift[p, 2] - m2 / wsum
+    particle_x[p, 0] += d0
+    particle_x[p, 1] += d1
+    particle_x[p, 2] += d2
+    particle_x_prev[p, 0] += d0
+    particle_x_prev[p, 1] += d1
+    particle_x_prev[p, 2] += d2
+
+
+@njit(parallel=True, cache=True)
+def apply_shifts(start, end, delta, pin_mask, bond_start, bond_nbr, bond_len0, particle_shift, particle_x,
+                 particle_x_prev):
+    """`apply_shift_at` for particles start..end-1."""
+    for p in prange(start, end):
+        apply_shift_at(p, delta, pin_mask, bond_start, bond_nbr, bond_len0, particle_shift, particle_x, particle_x_prev)
+
+
 VOLUME_PRESSURE = Kernel(volume_pressure_at, volume_pressures)
+SHIFT = Kernel(shift_at, shifts)
+APPLY_SHIFT = Kernel(apply_shift_at, apply_shifts)
 INCREMENTAL_DILATATION = Kernel(incremental_dilatation_at, incremental_dilatation)
 FORCES = Kernel(viscoelastic_force_at, viscoelastic_forces, reduce="sum")
 
@@ -416,6 +552,18 @@ def bonds(solver, body: int, dt: float):
     run(COPY_ROWS, b.start, b.end, a.particle_x, a.particle_x_prev)
 
 
+def shift(solver, body: int, dt: float):
+    """After G2P moved the particles: the particle shift (shift_at), computed for every particle of the body from
+    the moved positions, then applied less its family's mean (apply_shift_at)."""
+    b, a, m = solver.model.bodies[body], solver.a, solver.m
+    run = solver.backend.run
+    run(SHIFT, b.start, b.end, b.params.shift_distance * b.spacing, b.horizon, SHIFT_STRENGTH, SHIFT_CAP * b.spacing,
+        SURFACE_OFFSET * b.horizon, m.pin_mask, a.particle_x, m.particle_volume, a.bond_start, a.bond_nbr,
+        a.particle_shift)
+    run(APPLY_SHIFT, b.start, b.end, b.horizon, m.pin_mask, a.bond_start, a.bond_nbr, a.bond_len0, a.particle_shift,
+        a.particle_x, a.particle_x_prev)
+
+
 def energy(solver, state, body: int) -> float:
     """0: the linearised model has no stored-energy function of the positions (its forces depend on the path)."""
     return 0.0
@@ -432,7 +580,8 @@ def volume_ratio(model, state) -> np.ndarray:
 
 KIND = MaterialKind(
     name="viscoelastic", schema=Schema, params=params, forces=bonds, constants=constants, energy=energy,
-    before_forces=volume_pressure, after_forces=families, start=init_state, born=born, with_flow_speed=with_flow_speed,
+    before_forces=volume_pressure, after_forces=families, after_move=shift, moves=lambda p: p.shift_distance > 0.0,
+    start=init_state, born=born, with_flow_speed=with_flow_speed,
     outputs={"particle_J": volume_ratio},
     fields=(
         Field("particle_J", PARTICLE, fill=1.0, doc="volume ratio J = V / V0 from the grid velocity divergence [-]"),
@@ -443,5 +592,6 @@ KIND = MaterialKind(
         Field("particle_dtheta", PARTICLE, transient=True, doc="incremental dilatation of the step [-]"),
         Field("particle_x_prev", PARTICLE, (3,), doc="positions at the previous force evaluation [m]"),
         Field("particle_x_rebuild", PARTICLE, (3,), doc="positions at the last family rebuild [m]"),
+        Field("particle_shift", PARTICLE, (3,), transient=True, doc="particle shift of the step [m]"),
     ),
 )
