@@ -1,11 +1,12 @@
 """Throughput of the full step on an elastic cube: particle-steps/s and bond-updates/s per size.
 
-Usage: python bench/bench_cube.py [--sizes 32000 128000 512000] [--steps 20] [--taichi]
+Usage: python bench/bench_cube.py [--sizes 32000 128000 512000] [--steps 20] [--taichi] [--horizon 2.0] [--cpu-time]
 Prints one markdown table (for docs/results.md): per size the step time, particle-steps/s, the bond pass's
 bond-updates/s (directed bonds over the Fbar and force phases together, and over the force phase alone), the
 per-phase split of the step time, memory per particle and the cost per particle-step relative to the smallest
 size; with --taichi (pip install taichi) also a plain Taichi MLS-MPM step on the same cube without bonds
-(bench/taichi_cube.py, f32 and f64) and our ratio to it.
+(bench/taichi_cube.py, f32 and f64) and our ratio to it. --horizon sets delta / h (default 2, about 33 bonds per
+particle), to compare with a scene of another horizon (bench/table1_suite.py) at the same bonds per particle.
 """
 
 import argparse
@@ -21,8 +22,8 @@ from pdmpm_cli.runner import prepare_scene, start_in_memory
 from pdmpm_cli.scene.schema import Scene
 
 
-def cube_scene(n_target: int) -> Scene:
-    """A jittered elastic cube of about n_target particles (8 per cell, delta = 2h), free in space."""
+def cube_scene(n_target: int, horizon: float = 2.0) -> Scene:
+    """A jittered elastic cube of about n_target particles (8 per cell, delta = horizon h), free in space."""
     h = 0.01
     side = h * round(n_target ** (1 / 3))
     dx = 2 * h
@@ -32,15 +33,15 @@ def cube_scene(n_target: int) -> Scene:
         "grid": {"cell_size": dx, "domain": {"min": [0, 0, 0], "max": [side + 2 * pad] * 3}},
         "gravity": [0, 0, 0],
         "bodies": [{"name": "cube",
-                    "geometry": {"mode": "cloud", "sampling": "jittered",
+                    "geometry": {"mode": "cloud", "sampling": "jittered", "horizon": horizon,
                                  "shape": {"type": "box", "center": [pad + side / 2] * 3, "size": [side] * 3}},
                     "material": {"model": "elastic", "density": 1000.0, "lam": 1e5, "mu": 1e5},
                     "angular_velocity": [0.0, 0.5, 0.0]}],
     })
 
 
-def bench(n_target: int, steps: int, clock=time.perf_counter) -> dict:
-    prep = prepare_scene(cube_scene(n_target), "bench.yaml")
+def bench(n_target: int, steps: int, clock=time.perf_counter, horizon: float = 2.0) -> dict:
+    prep = prepare_scene(cube_scene(n_target, horizon), "bench.yaml")
     state, solver = start_in_memory(prep)
     solver.clock = clock
     dt = prep.plan.dt_max
@@ -78,10 +79,12 @@ def main():
     ap.add_argument("--cpu-time", action="store_true",
                     help="time in process CPU seconds (all threads) instead of wall seconds: steadier on a busy "
                          "machine; with NUMBA_NUM_THREADS=1 it is the single-core cost")
+    ap.add_argument("--horizon", type=float, default=2.0, help="peridynamic horizon delta / h (default 2)")
     args = ap.parse_args()
-    rows = [bench(n, args.steps, time.process_time if args.cpu_time else time.perf_counter) for n in args.sizes]
+    clock = time.process_time if args.cpu_time else time.perf_counter
+    rows = [bench(n, args.steps, clock, args.horizon) for n in args.sizes]
     print(f"machine: {platform.processor() or platform.machine()}, {numba.get_num_threads()} threads, "
-          f"numba {numba.__version__}, float64, {'CPU' if args.cpu_time else 'wall'} time")
+          f"numba {numba.__version__}, float64, {'CPU' if args.cpu_time else 'wall'} time, horizon {args.horizon} h")
     phases = list(rows[0]["phases"])
     taichi = {}
     if args.taichi:

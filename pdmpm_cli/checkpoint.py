@@ -1,7 +1,7 @@
 """Checkpoints: the complete simulation state every `output.checkpoint_every` frames, so that
 `pdmpm run --resume OUTDIR` continues a killed run and produces the frames an uninterrupted run would.
 
-``OUTDIR/checkpoints/frame_NNNNN.h5`` (``format = "pdmpm-checkpoint"``, ``format_version = 3``)::
+``OUTDIR/checkpoints/frame_NNNNN.h5`` (``format = "pdmpm-checkpoint"``, ``format_version = 4``)::
 
     /               attributes: format, format_version, frame, threads (Numba threads),
                       pdmpm_version, scene_path, overrides (JSON list of --set items), variant ("" for none),
@@ -42,7 +42,7 @@ from pdmpm_cli.io.hdf5 import reserved_file
 from pdmpm_cli.io.vtk import frame_index
 
 FORMAT = "pdmpm-checkpoint"
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4  # 4: plastic bodies store bond_reverse (engine.materials.plastic)
 FOLDER = "checkpoints"
 KEEP = 2
 

@@ -41,7 +41,7 @@ def state_fields(model: Model, backend: str) -> tuple[F.Field, ...]:
     for kind in dict.fromkeys(kinds):
         out += kind.fields
     if any(b.fracture is not None for b in model.bodies):
-        out += F.FRACTURE + (F.FRACTURE_CELLS if backend == "cuda" else ())
+        out += F.FRACTURE + F.FRACTURE_CELLS
     return tuple(dict.fromkeys(out))
 
 

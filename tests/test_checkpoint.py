@@ -273,3 +273,29 @@ def test_checkpoints_keep_the_thread_count_the_run_started_with(interrupted, tmp
     code, err = cli(monkeypatch, capsys, "run", "--resume", out, "--quiet")
     assert code == 130 and "the run started with 7 Numba threads" in err
     assert latest(out).frame == 12 and latest(out).attrs["threads"] == 7
+
+
+def test_plastic_run_resumes_bitwise_with_its_reverse_bonds(scene, tmp_path, monkeypatch, capsys):
+    """A yielding plastic block: the checkpoint carries bond_reverse with e_p (format 4), and the resumed run ends on
+    the uninterrupted run's frames."""
+    plastic = [*LONG, "bodies.0.material.model=plastic", "bodies.0.material.yield_stress=300"]
+    reference = tmp_path / "reference"
+    simulate(prepare(scene, plastic), reference, overwrite=True)
+    out = tmp_path / "run"
+    advance = Solver.advance
+
+    def stop(self, state, t_end, on_substep=None):
+        if t_end > 8.5 * self.plan.frame_dt:
+            raise KeyboardInterrupt
+        advance(self, state, t_end, on_substep)
+
+    monkeypatch.setattr(Solver, "advance", stop)
+    with pytest.raises(KeyboardInterrupt):
+        simulate(prepare(scene, plastic), out, overwrite=True)
+    monkeypatch.setattr(Solver, "advance", advance)
+    ckpt = latest(out)
+    assert "bond_reverse" in ckpt.arrays and np.count_nonzero(ckpt.arrays["bond_ep"]) > 0
+    code, err = cli(monkeypatch, capsys, "run", scene, "--resume", out, "--quiet",
+                    *[a for item in plastic for a in ("--set", item)])
+    assert code == 0, err
+    assert_same_frames(reference, out)

@@ -5,6 +5,7 @@ with the bodies apart, and no force across a gap. Cases in tests/contact_cases.p
 import numpy as np
 import pytest
 
+from pdmpm_cli.engine.contact import overlap_box
 from pdmpm_cli.engine.plan import Plan
 from pdmpm_cli.study.sim import Sim
 from tests import contact_cases as C
@@ -21,6 +22,16 @@ def test_one_body_or_shared_mode_allocates_no_fields():
     plan = Sim(C.sphere_pair(3)).plan
     assert plan.contact and "contact" in plan.phases and "grid" not in plan.fields
     assert plan.fields["grid_field"][0][0] == 2
+
+
+def test_overlap_box_covers_every_pair_overlap_only():
+    """The contact pass's node box: around the overlaps of any two fields' node boxes; empty without one (a field
+    without particles has no box)."""
+    a, b, c = np.array([0, 10, 0, 10, 0, 10]), np.array([8, 20, 2, 5, 0, 10]), np.array([30, 40, 0, 10, 0, 10])
+    assert overlap_box([a, b, c]).tolist() == [8, 10, 2, 5, 0, 10]
+    assert overlap_box([a, None, c]).tolist() == [0, 0, 0, 0, 0, 0]
+    d = np.array([35, 50, 9, 20, 5, 6])  # meets c only
+    assert overlap_box([a, b, c, d]).tolist() == [8, 40, 2, 10, 0, 10]
 
 
 @pytest.mark.parametrize("mode", ["penalty", "projection"])

@@ -52,13 +52,18 @@ def stretch(x, rest_x, bond_start, bond_nbr):
             - 1.0)
 
 
+def cell_counts(cells):
+    """inactive_fraction's dense per-cell counts (bonds, broken bonds), stale values in them to show they are reset."""
+    return np.full(int(np.prod(cells)), 7, np.int64), np.full(int(np.prod(cells)), 3, np.int64)
+
+
 def fracture_loop(threshold, start, end, x, rest_x, bond_start, bond_nbr, bond_active, max_updates):
     """Criterion and plane cuts until no candidate is left (or max_updates); returns (bonds cut, updates)."""
     n = len(x)
     inactive, lmax, bmax = np.zeros(n), np.zeros(n), np.zeros(n, np.int64)
     cut = 0
     for update in range(max_updates):
-        inactive_fraction(x, ORIGIN, 1.0 / DX, CELLS, bond_start, bond_active, inactive)
+        inactive_fraction(x, ORIGIN, 1.0 / DX, CELLS, bond_start, bond_active, *cell_counts(CELLS), inactive)
         if bond_criterion(start, end, threshold, 1.0, x, rest_x, bond_start, bond_nbr, bond_active, NO_EP, inactive,
                           lmax, bmax) == 0:
             return cut, update
@@ -81,7 +86,8 @@ def test_inactive_fraction_counts_broken_bonds_per_cell():
     broken = ((src == 0) & (bond_nbr == 1)) | ((src == 2) & (bond_nbr == 3))
     active[broken | broken[rev]] = 0
     out = np.full(6, -1.0)
-    inactive_fraction(x, np.zeros(3), 5.0, np.array([4, 4, 4], dtype=np.int64), bond_start, active, out)
+    cells = np.array([4, 4, 4], dtype=np.int64)
+    inactive_fraction(x, np.zeros(3), 5.0, cells, bond_start, active, *cell_counts(cells), out)
     # cell (0,0,0): particles 0, 1, 5 own 2 + 2 + 1 bonds, 2 broken (0-1 both ways); cell (1,0,0): 2, 3 own
     # 2 + 1 bonds, 2 broken (2-3 both ways); cell (1,1,0): particle 4 has no bonds
     assert out.tolist() == [2 / 5, 2 / 5, 2 / 3, 2 / 3, 0.0, 2 / 5]
@@ -100,7 +106,7 @@ def inactive_fraction_runs():
         for threads in (1, numba.config.NUMBA_NUM_THREADS):
             numba.set_num_threads(threads)
             out = np.zeros(len(x))
-            inactive_fraction(x, ORIGIN, 1.0 / DX, CELLS, bond_start, active, out)
+            inactive_fraction(x, ORIGIN, 1.0 / DX, CELLS, bond_start, active, *cell_counts(CELLS), out)
             runs.append(out)
     finally:
         numba.set_num_threads(threads_now)

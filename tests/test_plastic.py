@@ -5,7 +5,7 @@ import numpy as np
 from pdmpm_cli.engine.bonds import averaged_deformation
 from pdmpm_cli.engine.parallel import particle_chunks
 from pdmpm_cli.engine.materials.elastic import averaged_bond
-from pdmpm_cli.engine.materials.plastic import bond_dilatation, plastic_return_map
+from pdmpm_cli.engine.materials.plastic import bond_dilatation, plastic_return_map, reverse_slots
 
 from tests.conftest import BASE, merge
 
@@ -16,6 +16,13 @@ def block(sim_factory, material, size=0.5):
     body = merge(BASE["bodies"][0], {"material": material})
     body["geometry"]["shape"]["size"] = [size] * 3
     return sim_factory({"bodies": [body]})
+
+
+def reverse_of(m):
+    """bond_reverse of a Model's families (the plastic material's start hook)."""
+    out = np.full(len(m.bond_nbr), -1, np.int64)
+    reverse_slots(m.bond_start, m.bond_nbr, 0, m.n_particles, out)
+    return out
 
 
 def fbar_of(sim, x, fbar):
@@ -51,6 +58,7 @@ def test_shear_load_unload_reload(sim_factory):
     c = m.rest_x.mean(axis=0)
     p = int(np.argmin(np.linalg.norm(m.rest_x - c, axis=1)))
     ep = np.zeros(len(m.bond_nbr))
+    rev = reverse_of(m)
     theta = np.zeros(n)
     fbar = np.zeros((n, 3, 3))
     gy = sy / (lam + 2 * mu)  # a bond strain of the order of first yield
@@ -63,7 +71,7 @@ def test_shear_load_unload_reload(sim_factory):
         fbar_of(sim, x, fbar)
         bond_dilatation(0, n, delta, x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, NONE_U1, theta)
         worst = max(worst, plastic_return_map(0, n, lam, mu, 0.5 * sy**2, x, m.rest_x, m.bond_start, m.bond_nbr,
-                                              NONE_U1, NONE_U1, fbar, theta, ep))
+                                              NONE_U1, NONE_U1, fbar, theta, rev, ep))
         stress.append(shear_stress(m, x, fbar, ep, p, lam, mu, delta))
     stress = np.array(stress)
     g0 = stress[1] / path[1]  # initial shear modulus of the lattice
@@ -89,6 +97,7 @@ def test_return_map_bounded_under_sustained_flow(sim_factory):
     m = sim.model
     n = m.n_particles
     ep = np.zeros(len(m.bond_nbr))
+    rev = reverse_of(m)
     theta = np.zeros(n)
     fbar = np.zeros((n, 3, 3))
     worst = -1.0
@@ -99,7 +108,7 @@ def test_return_map_bounded_under_sustained_flow(sim_factory):
         bond_dilatation(0, n, m.body_horizon[0], x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, NONE_U1,
                         theta)
         worst = max(worst, plastic_return_map(0, n, lam, mu, 0.5 * sy**2, x, m.rest_x, m.bond_start, m.bond_nbr,
-                                              NONE_U1, NONE_U1, fbar, theta, ep))
+                                              NONE_U1, NONE_U1, fbar, theta, rev, ep))
     assert worst <= 1e-9 and np.isfinite(ep).all()
     assert np.abs(ep).max() < 0.5  # bounded by the total bond strain
 
@@ -114,10 +123,12 @@ def test_return_map_is_symmetric_and_rotation_free(sim_factory):
     theta = np.zeros(n)
     fbar = np.zeros((n, 3, 3))
     ep = np.zeros(len(m.bond_nbr))
+    rev = reverse_of(m)
     x = m.rest_x + 1e-3 * rng.standard_normal(m.rest_x.shape)
     fbar_of(sim, x, fbar)
     bond_dilatation(0, n, m.body_horizon[0], x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, NONE_U1, theta)
-    plastic_return_map(0, n, 1e5, 1e5, 1.0, x, m.rest_x, m.bond_start, m.bond_nbr, NONE_U1, NONE_U1, fbar, theta, ep)
+    plastic_return_map(0, n, 1e5, 1e5, 1.0, x, m.rest_x, m.bond_start, m.bond_nbr, NONE_U1, NONE_U1, fbar, theta, rev,
+                       ep)
     src = np.repeat(np.arange(n), np.diff(m.bond_start))
     key = src * n + m.bond_nbr
     rev = np.searchsorted(key, m.bond_nbr.astype(np.int64) * n + src)
@@ -128,7 +139,8 @@ def test_return_map_is_symmetric_and_rotation_free(sim_factory):
     x = m.rest_x @ rot.T
     fbar_of(sim, x, fbar)
     bond_dilatation(0, n, m.body_horizon[0], x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, NONE_U1, theta)
-    plastic_return_map(0, n, 1e5, 1e5, 1.0, x, m.rest_x, m.bond_start, m.bond_nbr, NONE_U1, NONE_U1, fbar, theta, ep)
+    plastic_return_map(0, n, 1e5, 1e5, 1.0, x, m.rest_x, m.bond_start, m.bond_nbr, NONE_U1, NONE_U1, fbar, theta, rev,
+                       ep)
     assert np.abs(ep).max() < 1e-12
 
 

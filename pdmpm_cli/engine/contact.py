@@ -24,6 +24,10 @@ the mass centres are closer than on the interface of touching bodies (`PENALTY_G
 closer, while the bodies approach and while they separate, so its work comes back (docs/method.md).
 
 `grid_surface[f]` holds per node G_f (0..2, [kg/m]) and m_f (c_f - x_I) (3..5, [kg m]).
+
+Contact can only act where two fields have mass, i.e. where the node boxes of two bodies (their particles' stencils)
+overlap: the surfaces and the contact pass cover only `overlap_box` of those, not the whole P2G box, so a small
+contact zone in a large scene costs little (every node outside it has at most one field's mass: no change).
 """
 
 import math
@@ -73,10 +77,37 @@ def surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, g, 
                                 w * d1, w * d2)
 
 
+def overlap_box(boxes) -> np.ndarray:
+    """Node box [i0, i1) x [j0, j1) x [k0, k1) around every overlap of two of the fields' node boxes (None: a field
+    without particles); empty (i0 = i1 = 0) when no two overlap."""
+    lo, hi = np.full(3, np.iinfo(np.int64).max), np.full(3, -1)
+    live = [b for b in boxes if b is not None]
+    for f, a in enumerate(live):
+        for b in live[f + 1:]:
+            o_lo, o_hi = np.maximum(a[0::2], b[0::2]), np.minimum(a[1::2], b[1::2])
+            if (o_lo < o_hi).all():
+                lo, hi = np.minimum(lo, o_lo), np.maximum(hi, o_hi)
+    if (hi < 0).any():
+        return np.zeros(6, dtype=np.int64)
+    return np.array([lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]], dtype=np.int64)
+
+
+@njit(cache=True, inline="always")
+def stencil_off_box(particle_x, p, origin, inv_dx, box):
+    """Whether particle p's stencil surely misses the node box (it lies within cells floor(x) - 2 .. floor(x) + 3)."""
+    for a in range(3):
+        c = math.floor((particle_x[p, a] - origin[a]) * inv_dx)
+        if c + 3 < box[2 * a] or c - 2 >= box[2 * a + 1]:
+            return True
+    return False
+
+
 @njit(parallel=True, cache=True)
 def surfaces(particle_x, particle_mass, particle_crack, origin, inv_dx, box, private, out):
-    """`surface_at` for every particle -> out on the node box: thread t scatters a fixed particle range into
-    private[t], then the private grids are summed in thread order (as transfer.p2g, so runs are reproducible)."""
+    """`surface_at` for every particle whose stencil meets the node box (`overlap_box`) -> out on the box: thread t
+    scatters a fixed particle range into private[t], then the private grids are summed in thread order (as
+    transfer.p2g, so runs are reproducible). A particle's nodes outside the box take stale sums in private[t], which
+    nothing reads: the box is cleared before every scatter."""
     nt = private.shape[0]
     n = particle_x.shape[0]
     for t in prange(nt):
@@ -89,6 +120,8 @@ def surfaces(particle_x, particle_mass, particle_crack, origin, inv_dx, box, pri
         wx, wy, wz = np.empty(4), np.empty(4), np.empty(4)
         gx, gy, gz = np.empty(4), np.empty(4), np.empty(4)
         for p in range(t * n // nt, (t + 1) * n // nt):
+            if stencil_off_box(particle_x, p, origin, inv_dx, box):
+                continue
             surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, g, wx, wy, wz, gx, gy, gz)
     for i in prange(box[0], box[1]):
         for j in range(box[2], box[3]):
@@ -193,7 +226,8 @@ def contact_node_at(i, j, k, grid_field, grid_surface, friction, stiffness, dx, 
 
 @njit(parallel=True, cache=True)
 def contact_update(grid_field, grid_surface, friction, stiffness, dx, dt, box):
-    """`contact_node_at` on every node of the box (dt 0: MUSL's second pass, where a penalty pushes nothing)."""
+    """`contact_node_at` on every node of the box (`overlap_box`; dt 0: MUSL's second pass, where a penalty pushes
+    nothing)."""
     for i in prange(box[0], box[1]):
         for j in range(box[2], box[3]):
             for k in range(box[4], box[5]):

@@ -67,7 +67,7 @@ FRACTURE = (
     Field("particle_lmax", PARTICLE, transient=True, doc="largest eq. 21 criterion over the particle's bonds [-]"),
     Field("particle_bmax", PARTICLE, dtype="i8", transient=True, doc="its bond index"),
 )
-# The GPU counts eq. 21's bonds per cell with atomics into dense cell arrays (the CPU sorts cell keys instead).
+# Eq. 21's bonds counted per cell into dense cell arrays (the GPU with atomics, the CPU serially).
 FRACTURE_CELLS = (
     Field("cell_bonds", GRID, dtype="i8", transient=True, doc="bonds of the particles in each cell (eq. 21)"),
     Field("cell_broken", GRID, dtype="i8", transient=True, doc="broken bonds of the particles in each cell"),

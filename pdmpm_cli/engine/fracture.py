@@ -57,11 +57,13 @@ def broken_bonds(p, bond_start, bond_active):
 
 
 @njit(parallel=True, cache=True)
-def inactive_fraction(particle_x, origin, inv_dx, cells, bond_start, bond_active, particle_inactive):
+def inactive_fraction(particle_x, origin, inv_dx, cells, bond_start, bond_active, cell_bonds, cell_broken,
+                      particle_inactive):
     """p_inactive of eq. 21: broken / all bonds of the particles in each particle's cell -> particle_inactive.
 
-    Cells are grouped by sorting their keys (the GPU counts into dense cell arrays with atomics instead); the counts
-    are integers, so the result depends neither on the thread count nor on the backend."""
+    The counts go into dense per-cell arrays (cell_bonds, cell_broken, as on the GPU), of which only the particles'
+    own cells are cleared and summed: linear in the particles, with no sort. They are integers, summed serially, so
+    the result depends neither on the thread count nor on the backend."""
     n = particle_x.shape[0]
     key = np.empty(n, np.int64)
     broken = np.empty(n, np.int64)
@@ -73,22 +75,15 @@ def inactive_fraction(particle_x, origin, inv_dx, cells, bond_start, bond_active
     if total == 0:
         particle_inactive[:] = 0.0
         return
-    order = np.argsort(key)
-    i = 0
-    while i < n:
-        k = key[order[i]]
-        j = i
-        nb = 0
-        nt = 0
-        while j < n and key[order[j]] == k:
-            p = order[j]
-            nb += broken[p]
-            nt += bond_start[p + 1] - bond_start[p]
-            j += 1
-        frac = nb / nt if nt > 0 else 0.0
-        for m in range(i, j):
-            particle_inactive[order[m]] = frac
-        i = j
+    for p in range(n):
+        cell_bonds[key[p]] = 0
+        cell_broken[key[p]] = 0
+    for p in range(n):
+        cell_bonds[key[p]] += bond_start[p + 1] - bond_start[p]
+        cell_broken[key[p]] += broken[p]
+    for p in prange(n):
+        nt = cell_bonds[key[p]]
+        particle_inactive[p] = cell_broken[key[p]] / nt if nt > 0 else 0.0
 
 
 @njit(cache=True)

@@ -96,6 +96,7 @@ class Solver:
         self.a = None  # the backend's arrays of the state (host or device), by name
         self.m = None  # the backend's arrays of the model
         self.box = None  # the node box P2G touched this step
+        self.contact_box = None  # within it, where two bodies' fields can meet (plan.contact)
         self.crack_index = np.zeros(0, np.int64)  # the crack-surface particles, in order
         nodes = np.asarray(model.grid_shape)
         self.cells = (nodes - 1).astype(np.int64)

@@ -4,7 +4,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from pdmpm_cli.engine.contact import contact_update, surfaces
+from pdmpm_cli.engine.contact import contact_update, overlap_box, surfaces
 from pdmpm_cli.engine.fracture import crack_contact, crack_particle_update, inactive_fraction
 from pdmpm_cli.engine.parallel import particle_chunks
 from pdmpm_cli.engine.transfer import advect, g2p, grid_update, p2g, position_bounds
@@ -37,6 +37,12 @@ class CpuBackend:
         lo, hi = position_bounds(state.particle_x)
         return solver.box_of(lo, hi)
 
+    def contact_box(self, solver, state) -> np.ndarray:
+        """`contact.overlap_box` of the bodies' node boxes: the only nodes where two fields can have mass."""
+        boxes = [solver.box_of(*position_bounds(state.particle_x[b.start:b.end])) if b.end > b.start else None
+                 for b in solver.model.bodies]
+        return overlap_box(boxes)
+
     @staticmethod
     def fields(solver, state):
         """(grid, start, end) per grid field: the one grid and every particle, or each body's field and its
@@ -48,6 +54,8 @@ class CpuBackend:
     def p2g(self, solver, state, dt) -> int:
         m = solver.model
         solver.box = self.node_box(solver, state)
+        if solver.plan.contact:
+            solver.contact_box = self.contact_box(solver, state)
         outside = 0
         for f, (grid, s, e) in enumerate(self.fields(solver, state)):
             outside += p2g(state.particle_x[s:e], state.particle_v[s:e], state.particle_C[s:e], m.particle_mass[s:e],
@@ -55,7 +63,7 @@ class CpuBackend:
                            1.0 / m.dx, solver.box, state.grid_private, grid)
             if solver.plan.contact:
                 surfaces(state.particle_x[s:e], m.particle_mass[s:e], state.particle_crack[s:e], m.origin, 1.0 / m.dx,
-                         solver.box, state.grid_surface_private, state.grid_surface[f])
+                         solver.contact_box, state.grid_surface_private, state.grid_surface[f])
         return outside
 
     def grid_update(self, solver, state, dt):
@@ -67,7 +75,7 @@ class CpuBackend:
     def contact(self, solver, state, dt):
         m = solver.model
         contact_update(state.grid_field, state.grid_surface, m.contact_friction, m.contact_stiffness, m.dx, dt,
-                       solver.box)
+                       solver.contact_box)
 
     def g2p(self, solver, state, dt) -> tuple[float, int]:
         m = solver.model
@@ -120,7 +128,7 @@ class CpuBackend:
     def inactive_fraction(self, solver, state):
         m = solver.model
         inactive_fraction(state.particle_x, m.origin, 1.0 / m.dx, solver.cells, state.bond_start, state.bond_active,
-                          state.particle_inactive)
+                          state.cell_bonds, state.cell_broken, state.particle_inactive)
 
     def crack_particles_changed(self, solver, state):
         """particle_crack changed on the host: nothing to upload here."""

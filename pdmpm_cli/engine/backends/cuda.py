@@ -157,6 +157,7 @@ d_cell_key = device(fracture.cell_key)
 d_broken_bonds = device(fracture.broken_bonds)
 d_surface_at = device(contact.surface_at)
 d_contact_node_at = device(contact.contact_node_at)
+d_stencil_off_box = device(contact.stencil_off_box)
 
 
 @cuda.jit(device=True)
@@ -201,9 +202,20 @@ def grid_update_kernel(grid, dt, gravity, wind, drag, origin, dx, box, t_new, co
 
 
 @cuda.jit
-def surface_kernel(particle_x, particle_mass, particle_crack, origin, inv_dx, grid_surface):
+def field_bounds(particle_x, bounds):
+    """Per-axis min (0..2) and max (3..5) of one field's particle positions -> bounds: its node box."""
     p = cuda.grid(1)
     if p < particle_x.shape[0]:
+        for a in range(3):
+            cuda.atomic.min(bounds, a, particle_x[p, a])
+            cuda.atomic.max(bounds, 3 + a, particle_x[p, a])
+
+
+@cuda.jit
+def surface_kernel(particle_x, particle_mass, particle_crack, origin, inv_dx, box, grid_surface):
+    """contact.surfaces on the GPU: the particles whose stencils meet the box (contact.overlap_box) scatter."""
+    p = cuda.grid(1)
+    if p < particle_x.shape[0] and not d_stencil_off_box(particle_x, p, origin, inv_dx, box):
         wx = cuda.local.array(4, float64)
         wy = cuda.local.array(4, float64)
         wz = cuda.local.array(4, float64)
@@ -359,6 +371,7 @@ class CudaBackend:
         self.device_name = device_name()
         self.stats = np.zeros(N_STATS)
         self.dirty = False  # the device holds steps the host State has not seen
+        self.dev_contact_box = None  # solver.contact_box on the device (plan.contact)
 
     # ---- host <-> device
     def start(self, solver, state):
@@ -435,15 +448,35 @@ class CudaBackend:
         self.box = cuda.to_device(solver.box)
         b = solver.box
         nodes_in_box = int((b[1] - b[0]) * (b[3] - b[2]) * (b[5] - b[4]))
+        if solver.plan.contact:
+            self.contact_box(solver)
+        c = solver.contact_box
+        nodes_in_contact = 0 if c is None else int((c[1] - c[0]) * (c[3] - c[2]) * (c[5] - c[4]))
         for f, (grid, s, e) in enumerate(self.fields(solver)):
             x, mass, crack = rows(a.particle_x, s, e), rows(d.particle_mass, s, e), rows(a.particle_crack, s, e)
             launch(zero_box, nodes_in_box, self.box, grid)
             launch(p2g_kernel, e - s, x, rows(a.particle_v, s, e), rows(a.particle_C, s, e), mass,
                    rows(a.particle_force, s, e), crack, rows(d.pin_mask, s, e), dt, d.origin, 1.0 / m.dx, grid)
-            if solver.plan.contact:
-                launch(zero_box, nodes_in_box, self.box, a.grid_surface[f])
-                launch(surface_kernel, e - s, x, mass, crack, d.origin, 1.0 / m.dx, a.grid_surface[f])
+            if solver.plan.contact:  # no overlap: nothing to launch
+                launch(zero_box, nodes_in_contact, self.dev_contact_box, a.grid_surface[f])
+                launch(surface_kernel, (e - s) if nodes_in_contact else 0, x, mass, crack, d.origin, 1.0 / m.dx,
+                       self.dev_contact_box, a.grid_surface[f])
         return 0
+
+    def contact_box(self, solver):
+        """contact.overlap_box of the fields' node boxes (from their particles' bounds: one more small read-back
+        per step) -> solver.contact_box and its device copy."""
+        fields = self.fields(solver)
+        bounds = np.empty((len(fields), 6))
+        bounds[:, :3], bounds[:, 3:] = math.inf, -math.inf
+        dev = cuda.to_device(bounds)
+        for f, (_, s, e) in enumerate(fields):
+            launch(field_bounds, e - s, rows(solver.a.particle_x, s, e), dev[f])
+        dev.copy_to_host(bounds)
+        boxes = [solver.box_of(lo_hi[:3], lo_hi[3:]) if e > s else None
+                 for lo_hi, (_, s, e) in zip(bounds, fields)]
+        solver.contact_box = contact.overlap_box(boxes)
+        self.dev_contact_box = cuda.to_device(solver.contact_box)
 
     def grid_update(self, solver, state, dt):
         m, b = solver.model, solver.box
@@ -453,10 +486,10 @@ class CudaBackend:
                    state.time + dt, solver.m.colliders, m.wall_boundary, m.wall_friction)
 
     def contact(self, solver, state, dt):
-        b = solver.box
-        launch(contact_kernel, int((b[1] - b[0]) * (b[3] - b[2]) * (b[5] - b[4])), solver.a.grid_field,
+        c = solver.contact_box
+        launch(contact_kernel, int((c[1] - c[0]) * (c[3] - c[2]) * (c[5] - c[4])), solver.a.grid_field,
                solver.a.grid_surface, solver.m.contact_friction, solver.m.contact_stiffness, solver.model.dx, dt,
-               self.box)
+               self.dev_contact_box)
 
     def g2p(self, solver, state, dt) -> tuple[float, int]:
         """G2P, then the one read-back of the step: speed, non-finite count and bounds (crack particles included:

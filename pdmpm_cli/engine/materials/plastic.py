@@ -15,7 +15,9 @@ is the force's yield limit; measuring s alone let a flattened soft block gain st
 e_iso is the isotropic part of the bond strain: the mean of the pair's two particle dilatations / 3, where a
 particle's dilatation theta_p = 3 sum_q w |xi|^2 s V_q / sum_q w |xi|^2 V_q (the LPS dilatation written with
 strains; unlike tr(Fbar) - 3 it is zero under any rigid rotation and defined for cloth). Using the pair mean
-makes e_p identical on both stored directions of a bond, so forces stay pairwise equal and opposite.
+makes e_p identical on both stored directions of a bond, so forces stay pairwise equal and opposite. The return map
+therefore runs once per bond pair, at its lower-index particle, and copies e_p to the reverse bond (`bond_reverse`:
+the slot of q -> p in q's family, found once at the start and checkpointed with e_p).
 """
 
 import math
@@ -95,13 +97,27 @@ def bond_dilatation(start, end, delta, particle_x, rest_x, particle_volume, bond
 
 
 @njit(cache=True)
+def reverse_slots(bond_start, bond_nbr, start, end, bond_reverse):
+    """bond_reverse[b] = the slot of q -> p in q's family, for the bonds b = p -> q of particles start..end-1."""
+    for p in range(start, end):
+        for b in range(bond_start[p], bond_start[p + 1]):
+            q = bond_nbr[b]
+            for r in range(bond_start[q], bond_start[q + 1]):
+                if bond_nbr[r] == p:
+                    bond_reverse[b] = r - bond_start[q]
+                    break
+
+
+@njit(cache=True)
 def return_map_at(p, lam, mu, psi, particle_x, rest_x, bond_start, bond_nbr, bond_active, particle_crack,
-                  particle_Fbar, particle_theta, bond_ep):
-    """Eqs. 10-11 for every yielding bond of particle p, bond_ep in place; returns the largest f / psi_p after.
+                  particle_Fbar, particle_theta, bond_reverse, bond_ep):
+    """Eqs. 10-11 for every yielding bond p -> q with q > p, bond_ep in place on it and its reverse q -> p; returns
+    the largest f / psi_p after (-1 for no such bond).
 
     The bond strain is the one the force of eq. 9 acts on (elastic.py): (lam s + mu (sbar_p + sbar_q)) / M, with
     s = |eta|/|xi| - 1 and sbar = |Fbar xi|/|xi| - 1 (s for a crack particle). Both stored directions of a bond see
-    the same strain and pair mean of theta, so e_p stays equal on the two."""
+    the same strain and pair mean of theta (to the bit), so one update serves both; each pair is written by one
+    particle only (families are symmetric, and cuts remove both directions)."""
     has_active = bond_active.shape[0] > 0
     has_crack = particle_crack.shape[0] > 0
     modulus = lam + 2.0 * mu
@@ -110,9 +126,9 @@ def return_map_at(p, lam, mu, psi, particle_x, rest_x, bond_start, bond_nbr, bon
     p_crack = has_crack and particle_crack[p] != 0
     fmax = -1.0
     for b in range(bond_start[p], bond_start[p + 1]):
-        if has_active and bond_active[b] == 0:
-            continue
         q = bond_nbr[b]
+        if q < p or (has_active and bond_active[b] == 0):
+            continue
         x0, x1, x2, r = bond_vector(rest_x, p, q)
         s = bond_vector(particle_x, p, q)[3] / r - 1.0
         strain = s
@@ -125,6 +141,7 @@ def return_map_at(p, lam, mu, psi, particle_x, rest_x, bond_start, bond_nbr, bon
         e = modulus * (e_dev - bond_ep[b])
         if abs(e) > limit:
             bond_ep[b] += (e - math.copysign(limit, e)) / modulus
+            bond_ep[bond_start[q] + bond_reverse[b]] = bond_ep[b]
             e = modulus * (e_dev - bond_ep[b])
         fmax = max(fmax, (0.5 * e * e - psi) / psi)
     return fmax
@@ -132,13 +149,13 @@ def return_map_at(p, lam, mu, psi, particle_x, rest_x, bond_start, bond_nbr, bon
 
 @njit(parallel=True, cache=True)
 def plastic_return_map(start, end, lam, mu, psi, particle_x, rest_x, bond_start, bond_nbr, bond_active, particle_crack,
-                       particle_Fbar, particle_theta, bond_ep):
+                       particle_Fbar, particle_theta, bond_reverse, bond_ep):
     """`return_map_at` for particles start..end-1; returns the largest f / psi_p after the update (0 up to round-off
     when the map is exact, -1 for no particles)."""
     worst = np.full(end - start, -1.0)
     for p in prange(start, end):
         worst[p - start] = return_map_at(p, lam, mu, psi, particle_x, rest_x, bond_start, bond_nbr, bond_active,
-                                         particle_crack, particle_Fbar, particle_theta, bond_ep)
+                                         particle_crack, particle_Fbar, particle_theta, bond_reverse, bond_ep)
     return worst.max() if end > start else -1.0
 
 
@@ -165,8 +182,14 @@ def return_map(solver, body: int, dt: float):
         a.bond_active, a.particle_theta)
     residual = run(RETURN_MAP, b.start, b.end, b.params.lam, b.params.mu, b.params.psi, a.particle_x, m.rest_x,
                    a.bond_start, a.bond_nbr, a.bond_active, a.particle_crack, a.particle_Fbar, a.particle_theta,
-                   a.bond_ep)
+                   a.bond_reverse, a.bond_ep)
     solver.state.yield_residual = max(solver.state.yield_residual, residual)
+
+
+def start(solver, state, body: int):
+    """The reverse-bond slots of the body's bonds (its families never change: plastic bodies are not rebuilt)."""
+    b = solver.model.bodies[body]
+    reverse_slots(state.bond_start, state.bond_nbr, b.start, b.end, state.bond_reverse)
 
 
 def plastic_strain(model, state) -> np.ndarray:
@@ -177,9 +200,10 @@ def plastic_strain(model, state) -> np.ndarray:
 
 KIND = MaterialKind(
     name="plastic", schema=Schema, params=params, forces=elastic.bonds, constants=elastic.constants,
-    energy=elastic.energy, before_forces=return_map, uses_fbar=lambda p: p.mu > 0,
+    energy=elastic.energy, before_forces=return_map, start=start, uses_fbar=lambda p: p.mu > 0,
     fields=elastic.KIND.fields + (
         Field("bond_ep", BOND, doc="plastic strain per bond (eq. 9) [-]"),
+        Field("bond_reverse", BOND, dtype="i8", doc="slot of the reverse bond q -> p in q's family [-]"),
         Field("particle_theta", PARTICLE, transient=True, doc="dilatation for e_iso (eq. 9) [-]"),
     ),
     outputs={"particle_plastic_strain": plastic_strain},
