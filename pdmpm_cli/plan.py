@@ -128,7 +128,8 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
         phases=tuple(phases), fields=fields, bodies=tuple(bodies), particles=n, bonds=nb,
         grid_nodes=tuple(model.grid_shape), cell_size=scene.grid.cell_size,
         frames=max(1, int(round(sim.duration * sim.fps))), frame_dt=frame_dt, dt_user=sim.dt,
-        step=sim.step, dt_cfl=dt_cfl, dt_bond=dt_bond, dt_max=dt_max, binding=binding, dt_reduced=reduced, wave_speed=wave,
+        step=sim.step, dt_cfl=dt_cfl, dt_bond=dt_bond, dt_max=dt_max, binding=binding, dt_reduced=reduced,
+        wave_speed=wave,
         memory_bytes=memory, notes=tuple(disc.notes), backend=sim.backend, fbar=need_fbar, fracture=fracture,
         contact=contact, remap=remap, emitted=emitted,
     )

@@ -150,7 +150,7 @@ def test_study_command_exit_codes(tmp_path):
     r = pdmpm("study", bad, "--levels", "2")
     assert r.returncode == 2 and "simulation.duration" in r.stderr
     r = pdmpm("study", "bar", "--set", "grid.cell_size=1")
-    assert r.returncode == 2 and "a built-in problem takes --set simulation.<key>=value only" in r.stderr
+    assert r.returncode == 2 and "built-in problem takes --set simulation.<key>=value only" in r.stderr
     thrown = tmp_path / "thrown.yaml"
     thrown.write_text(SMALL.replace("material: {model: elastic", "velocity: [0, 40, 0]\n    material: {model: elastic"))
     r = pdmpm("study", thrown, "--levels", "2", "--ratio", "1.1", "--time-levels", "0", "--out", tmp_path / "out")

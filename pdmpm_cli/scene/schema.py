@@ -418,8 +418,8 @@ class Simulation(Strict):
     )
     cfl: float | None = Field(
         None, gt=0, le=1.0,
-        description=f"CFL factor: dt <= cfl dx / (wave speed + max speed) [-]; default {CFL['conservative']:g} with step "
-                    f"conservative, {CFL['auto']:g} with step auto."
+        description=f"CFL factor: dt <= cfl dx / (wave speed + max speed) [-]; default {CFL['conservative']:g} "
+                    f"with step conservative, {CFL['auto']:g} with step auto."
     )
     bond_safety: float = Field(
         0.7, gt=0, le=1.0, description="Safety factor on the peridynamic bond time-step bound [-]."
