@@ -20,7 +20,7 @@ from pdmpm_cli.engine.plan import BodyPlan, Plan
 from pdmpm_cli.engine.state import shape_of
 from pdmpm_cli.engine.transfer import CHANNELS, FLIP_CHANNELS
 from pdmpm_cli.errors import InputError
-from pdmpm_cli.scene.schema import Scene
+from pdmpm_cli.scene.schema import CFL, Scene
 
 # Static arrays of the Model, listed with the State's so the Plan's inventory (and memory) is complete.
 MODEL_FIELDS = {
@@ -82,11 +82,13 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
             fracture_threshold=b.fracture.threshold if b.fracture else None,
             fracture_energy=b.fracture.energy if b.fracture else None))
     wave = max(b.effective["wave_speed"] for b in bodies)
-    dt_cfl = sim.cfl * scene.grid.cell_size / wave
-    # The step stays 4.5-30x below the predicted stability limit (engine.spectrum, `validate --limits`): the bond
-    # bound is kept as an accuracy control, since the CFL step alone (about 3x larger) costs accuracy the
-    # verification tests guard (docs/method.md, 'Time step').
-    dt_bond = sim.bond_safety * min(b.dt_bond for b in bodies)
+    dt_cfl = (CFL[sim.step] if sim.cfl is None else sim.cfl) * scene.grid.cell_size / wave
+    # Grid-integrated particles move with B-spline grid velocities, which do not carry the particle-scale modes
+    # dt_bond protects (stable to 1.4-2 dx / c, 3.7-13x dt_bond); crack particles integrate their own bonds, so
+    # `auto` keeps the bond bound for fracture bodies only. `conservative` keeps it for all (docs/method.md,
+    # 'Time step').
+    bonded = [b for b, m in zip(bodies, model.bodies) if sim.step == "conservative" or m.fracture is not None]
+    dt_bond = sim.bond_safety * min((b.dt_bond for b in bonded), default=math.inf)
     frame_dt = 1.0 / sim.fps
     bounds = {"cfl": dt_cfl, "bonds": dt_bond, "frame": frame_dt}
     binding = min(bounds, key=bounds.get)
@@ -129,7 +131,8 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
         phases=tuple(phases), fields=fields, bodies=tuple(bodies), particles=n, bonds=nb,
         grid_nodes=tuple(model.grid_shape), cell_size=scene.grid.cell_size,
         frames=max(1, int(round(sim.duration * sim.fps))), frame_dt=frame_dt, dt_user=sim.dt,
-        dt_cfl=dt_cfl, dt_bond=dt_bond, dt_max=dt_max, binding=binding, dt_reduced=reduced, wave_speed=wave,
+        step=sim.step, dt_cfl=dt_cfl, dt_bond=dt_bond, dt_max=dt_max, binding=binding, dt_reduced=reduced,
+        wave_speed=wave,
         memory_bytes=memory, notes=tuple(disc.notes), backend=sim.backend, fbar=need_fbar, fracture=fracture,
         contact=contact, remap=remap, emitted=emitted,
     )

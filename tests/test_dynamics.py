@@ -140,3 +140,20 @@ def test_flip_keeps_the_energy_of_a_free_vibration(sim_factory):
         ratios.append(energy() / e0)
     print(f"\nfree bar, flip = 1: energy / initial every quarter of its 10 s {np.round(ratios, 4).tolist()}")
     assert min(ratios) > 0.99 and max(ratios) < 1.01
+
+
+def test_auto_step_drops_the_bond_bound_of_grid_bodies_only(sim_factory):
+    """simulation.step auto: an elastic body takes the CFL step (0.25 dx / c at rest), no bond bound, and an
+    instability names only the CFL knob; a fracture body keeps its bond bound (crack particles integrate bonds
+    off the grid). The conservative default keeps the bond bound for every body."""
+    conservative = sim_factory()
+    assert conservative.plan.binding == "bonds" and conservative.plan.step == "conservative"
+    auto = sim_factory({"simulation": {"step": "auto"}})
+    plan = auto.plan
+    assert plan.binding == "cfl" and plan.dt_bond == np.inf
+    assert plan.dt_max == pytest.approx(0.25 * plan.cell_size / plan.wave_speed)
+    assert plan.dt_max > 1.3 * conservative.plan.dt_max  # the bond bound is 0.18 dx / c here
+    assert auto.solver.knobs() == "simulation.cfl"
+    body = {**sim_factory().scene.bodies[0].model_dump(), "fracture": {"threshold": 0.02}}
+    cracking = sim_factory({"simulation": {"step": "auto"}, "bodies": [body]})
+    assert cracking.plan.binding == "bonds" and cracking.plan.dt_bond < np.inf

@@ -80,6 +80,16 @@ def test_free_fall_time_ladder_is_first_order():
     assert time_rows[0].error * FREE_FALL.scale == pytest.approx(9.81 * 0.3 * dt / 4, rel=0.1)  # g t (dt - dt/2)/2
 
 
+def test_problem_study_takes_simulation_overrides():
+    """--set simulation.step=auto on a built-in problem: the CFL step (0.25 dx / c) replaces the bond bound at every
+    level, so the free fall takes fewer steps and, its error being symplectic Euler's g t dt / 2, a larger error."""
+    kw = dict(levels=2, time_levels=0, finest=0.05, ratio=2.0)
+    conservative = problem_study(FREE_FALL, **kw)
+    auto = problem_study(FREE_FALL, **kw, overrides=["simulation.step=auto"])
+    for c, a in zip(conservative.runs, auto.runs):
+        assert a.steps < 0.8 * c.steps and a.error > c.error
+
+
 def test_field_error_matches_particles_by_rest_position():
     rng = np.random.default_rng(0)
     fine_x = rng.uniform(0, 1, (2000, 3))
@@ -140,7 +150,7 @@ def test_study_command_exit_codes(tmp_path):
     r = pdmpm("study", bad, "--levels", "2")
     assert r.returncode == 2 and "simulation.duration" in r.stderr
     r = pdmpm("study", "bar", "--set", "grid.cell_size=1")
-    assert r.returncode == 2 and "--set and --variant apply to scene files" in r.stderr
+    assert r.returncode == 2 and "built-in problem takes --set simulation.<key>=value only" in r.stderr
     thrown = tmp_path / "thrown.yaml"
     thrown.write_text(SMALL.replace("material: {model: elastic", "velocity: [0, 40, 0]\n    material: {model: elastic"))
     r = pdmpm("study", thrown, "--levels", "2", "--ratio", "1.1", "--time-levels", "0", "--out", tmp_path / "out")

@@ -51,11 +51,11 @@ def study(
                       f"{run.steps} steps, {run.wall_s:.1f} s, error {err}")
 
     if target in PROBLEMS:
-        if set_ or variant:
-            raise InputError(f"--set and --variant apply to scene files, not to the built-in problem {target!r}")
+        if variant:
+            raise InputError(f"--variant applies to scene files, not to the built-in problem {target!r}")
         problem = PROBLEMS[target]
         console.print(f"{target}: {problem.description}; reference {problem.reference_name}")
-        result = problem_study(problem, levels, time_levels, finest, ratio, show)
+        result = problem_study(problem, levels, time_levels, finest, ratio, show, set_)
     else:
         path = Path(target)
         if path.suffix not in (".yaml", ".yml") and not path.is_file():

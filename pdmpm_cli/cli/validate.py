@@ -98,10 +98,12 @@ def print_plan(console: Console, plan):
     steps.add_column("bound")
     steps.add_column(escape("value [s]"), justify="right")
     steps.add_row("user dt", "-" if plan.dt_user is None else f"{plan.dt_user:.4g}")
-    steps.add_row("CFL (at rest)", f"{plan.dt_cfl:.4g}")
-    steps.add_row("bonds (x safety)", f"{plan.dt_bond:.4g}")
+    steps.add_row(f"CFL (at rest; {plan.dt_cfl * plan.wave_speed / plan.cell_size:.3g} dx / c)", f"{plan.dt_cfl:.4g}")
+    steps.add_row("bonds (x safety, " + ("every body)" if plan.step == "conservative" else "fracture bodies)"),
+                  "-" if plan.dt_bond == float("inf") else f"{plan.dt_bond:.4g}")
     steps.add_row("frame", f"{plan.frame_dt:.4g}")
-    steps.add_row(f"used (max; binding: {plan.binding})", f"{plan.dt_max:.4g}")
+    steps.add_row(f"used (max; rule: {plan.step}; binding: {plan.binding}; "
+                  f"{plan.dt_max * plan.wave_speed / plan.cell_size:.3g} dx / c)", f"{plan.dt_max:.4g}")
     steps.add_row("substeps per frame (>=)", f"{plan.frame_dt / plan.dt_max:.1f}")
     console.print(steps)
     arrays = Table(title=f"arrays ({plan.memory_bytes / 2**20:.1f} MiB)")

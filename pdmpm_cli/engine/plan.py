@@ -32,8 +32,9 @@ class Plan:
     frames: int
     frame_dt: float
     dt_user: float | None
+    step: str  # simulation.step: conservative (bond bound of every body) or auto (of fracture bodies only)
     dt_cfl: float  # cfl dx / wave speed, at rest [s]
-    dt_bond: float  # bond_safety * min over particles of the bond bound [s]
+    dt_bond: float  # bond_safety * min of the bond bound over the particles the rule bounds; inf if none [s]
     dt_max: float  # the largest step the solver will take [s]
     binding: str  # which bound sets dt_max: user, cfl, bonds or frame
     dt_reduced: bool  # the user's dt was above a bound and was reduced
@@ -60,5 +61,5 @@ class Plan:
         out = list(self.notes)
         if self.dt_reduced:
             out.append(f"simulation.dt = {self.dt_user:.3g} s is above the stability bound; using {self.dt_max:.3g} s "
-                       f"(CFL bound {self.dt_cfl:.3g} s, bond bound {self.dt_bond:.3g} s)")
+                       f"(CFL bound {self.dt_cfl:.3g} s, bond bound {self.dt_bond:.3g} s, step {self.step})")
         return out

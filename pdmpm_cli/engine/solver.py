@@ -324,16 +324,20 @@ class Solver:
                 f"can supply ({limit:.4g} J); "
                 f"fastest particles {fastest.tolist()} at speed "
                 f"{np.linalg.norm(state.particle_v[fastest[0]]):.4g} m/s. "
-                f"Lower simulation.cfl or simulation.bond_safety (now {self.plan.dt_max:.3g} s max step)"
+                f"Lower {self.knobs()} (now {self.plan.dt_max:.3g} s max step)"
             )
+
+    def knobs(self) -> str:
+        """The factors that set the step: bond_safety only where the rule applies a bond bound."""
+        return "simulation.cfl" + (" or simulation.bond_safety" if self.plan.dt_bond < np.inf else "")
 
     def fail_nonfinite(self, state: State):
         self.sync(state)
         bad = np.flatnonzero(~np.isfinite(state.particle_x).all(axis=1) | ~np.isfinite(state.particle_v).all(axis=1))
         raise SimulationError(
             f"NaN or infinite values at step {state.step + 1} (t = {state.time:.6g} s) in {len(bad)} particles "
-            f"(first: {bad[:8].tolist()}). The step became unstable: lower simulation.cfl or "
-            f"simulation.bond_safety, or set a smaller simulation.dt (max step now {self.plan.dt_max:.3g} s)"
+            f"(first: {bad[:8].tolist()}). The step became unstable: lower {self.knobs()}, or set a "
+            f"smaller simulation.dt (max step now {self.plan.dt_max:.3g} s)"
         )
 
     def fail_outside(self, state: State):
@@ -343,8 +347,8 @@ class Solver:
         f = (state.particle_x - m.origin) / m.dx
         bad = np.flatnonzero(~((f >= 1.0) & (f < nodes - 3)).all(axis=1))
         cells_per_step = np.linalg.norm(state.particle_v[bad], axis=1).max() * self.plan.dt_max / m.dx
-        hint = (f"they move {cells_per_step:.2g} cells per step, so the step is unstable: lower simulation.cfl or "
-                f"simulation.bond_safety, or set a smaller simulation.dt" if cells_per_step > 1.0 else
+        hint = (f"they move {cells_per_step:.2g} cells per step, so the step is unstable: lower {self.knobs()}, or "
+                f"set a smaller simulation.dt" if cells_per_step > 1.0 else
                 "enlarge grid.domain, or check initial velocities and collider motion")
         raise SimulationError(
             f"{len(bad)} particles left the simulation domain at step {state.step + 1} (t = {state.time:.6g} s), "

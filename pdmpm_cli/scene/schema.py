@@ -17,6 +17,7 @@ from pdmpm_cli.engine.materials import MATERIALS
 from pdmpm_cli.spec import Strict, Vec3
 
 MAX_FRAMES = 100_000  # duration x fps; an hour at 30 fps is 108,000 frames of output per particle
+CFL = {"conservative": 0.4, "auto": 0.25}  # default CFL factor of each step rule (docs/method.md, 'Time step')
 
 
 # ---------------------------------------------------------------- shapes
@@ -408,7 +409,18 @@ class Simulation(Strict):
     dt: float | None = Field(
         None, gt=0, description="Maximum time step [s]; reduced (with a warning) where above the stability bound."
     )
-    cfl: float = Field(0.4, gt=0, le=1.0, description="CFL factor: dt <= cfl dx / (wave speed + max speed) [-].")
+    step: Literal["auto", "conservative"] = Field(
+        "conservative",
+        description="Time-step rule. conservative: dt <= cfl dx / (wave speed + max speed) and bond_safety times the "
+                    "peridynamic bond bound of every body (about 0.15 dx / wave speed) [-]. auto: the same CFL bound, "
+                    "and the bond bound of fracture bodies only (their crack particles integrate bonds off the grid); "
+                    "grid-integrated bodies are stable to 1.4-2 dx / wave speed. docs/method.md, 'Time step'."
+    )
+    cfl: float | None = Field(
+        None, gt=0, le=1.0,
+        description=f"CFL factor: dt <= cfl dx / (wave speed + max speed) [-]; default {CFL['conservative']:g} "
+                    f"with step conservative, {CFL['auto']:g} with step auto."
+    )
     bond_safety: float = Field(
         0.7, gt=0, le=1.0, description="Safety factor on the peridynamic bond time-step bound [-]."
     )

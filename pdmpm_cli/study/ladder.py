@@ -24,7 +24,7 @@ from pdmpm_cli.engine.state import State
 from pdmpm_cli.engine.solver import Solver
 from pdmpm_cli.io.atomic import atomic_write_text
 from pdmpm_cli.runner import Prepared, prepare, start_in_memory
-from pdmpm_cli.scene.loader import load_scene
+from pdmpm_cli.scene.loader import load_scene, merge, parse_overrides
 from pdmpm_cli.scene.schema import Scene
 from pdmpm_cli.study.problems import Problem
 from pdmpm_cli.study.sim import Sim
@@ -120,11 +120,28 @@ def _ladders(name: str, quantity: str, space: list, timed: Callable[[float], obj
     return Study(name, quantity, runs)
 
 
+def simulation_changes(overrides) -> dict:
+    """`simulation.key=value` overrides as a scene dict (a built-in problem takes no other: its geometry is what
+    its analytic value describes)."""
+    from pdmpm_cli.errors import InputError
+
+    changes = {}
+    for keys, value in parse_overrides(list(overrides)):
+        if len(keys) != 2 or keys[0] != "simulation" or keys[1] in ("duration", "fps", "dt"):
+            raise InputError(f"a built-in problem takes --set simulation.<key>=value only (not duration, fps or "
+                             f"dt, which the problem and its time ladder set); got {'.'.join(map(str, keys))}")
+        changes[keys[1]] = value
+    return {"simulation": changes} if changes else {}
+
+
 def problem_study(problem: Problem, levels: int, time_levels: int, finest: float | None = None,
-                  ratio: float | None = None, on_run: OnRun | None = None) -> Study:
-    """A built-in problem: space ladder against its analytic value, time ladder on its finest grid."""
+                  ratio: float | None = None, on_run: OnRun | None = None, overrides=()) -> Study:
+    """A built-in problem: space ladder against its analytic value, time ladder on its finest grid; `overrides`
+    (`simulation.key=value`, as --set) change every run's simulation section (the step rule, say)."""
     cells = cell_ladder(finest or problem.finest, ratio or problem.ratio, levels)
-    warm = Sim(problem.scene(cells[0]))
+    changes = simulation_changes(overrides)
+    scene_of = lambda cell: merge(problem.scene(cell), changes)  # noqa: E731
+    warm = Sim(scene_of(cells[0]))
     _warm_up(warm.solver, warm.state)
 
     def execute(ladder, level, scene):
@@ -136,10 +153,10 @@ def problem_study(problem: Problem, levels: int, time_levels: int, finest: float
                     "analytic: " + problem.reference_name), m, sim.plan.dt_max
 
     def timed(dt):
-        scene = problem.scene(cells[-1])
+        scene = scene_of(cells[-1])
         return {**scene, "simulation": {**scene["simulation"], "dt": dt}}
 
-    return _ladders(problem.name, problem.quantity, [problem.scene(c) for c in cells], timed, time_levels, execute,
+    return _ladders(problem.name, problem.quantity, [scene_of(c) for c in cells], timed, time_levels, execute,
                     problem.error, True, on_run)
 
 
