@@ -51,18 +51,24 @@ def reference(scene, tmp_path_factory) -> Path:
     return out
 
 
+def stopping_after(frames: int):
+    """Solver.advance that stops the run past frame `frames` as Ctrl-C would (KeyboardInterrupt)."""
+    advance = Solver.advance
+
+    def stop(self, state, t_end, on_substep=None):
+        if t_end > (frames + 0.5) * self.plan.frame_dt:
+            raise KeyboardInterrupt
+        advance(self, state, t_end, on_substep)
+
+    return stop
+
+
 @pytest.fixture(scope="module")
 def interrupted(scene, tmp_path_factory) -> Path:
     """A run stopped after frame 8 (checkpoints at frames 3 and 6), in this process: a template to copy."""
     out = tmp_path_factory.mktemp("interrupted") / "run"
     advance = Solver.advance
-
-    def stop(self, state, t_end, on_substep=None):
-        if t_end > 8.5 * self.plan.frame_dt:
-            raise KeyboardInterrupt
-        advance(self, state, t_end, on_substep)
-
-    Solver.advance = stop
+    Solver.advance = stopping_after(8)
     try:
         with pytest.raises(KeyboardInterrupt):
             simulate(prepare(scene, LONG), out, overwrite=True)
@@ -262,14 +268,7 @@ def test_checkpoints_keep_the_thread_count_the_run_started_with(interrupted, tmp
     out = copy_of(interrupted, tmp_path)
     with h5py.File(out / "checkpoints" / "frame_00006.h5", "r+") as f:
         f.attrs["threads"] = 7  # as if the run had started with 7 threads
-    advance = Solver.advance
-
-    def stop(self, state, t_end, on_substep=None):
-        if t_end > 12.5 * self.plan.frame_dt:
-            raise KeyboardInterrupt
-        advance(self, state, t_end, on_substep)
-
-    monkeypatch.setattr(Solver, "advance", stop)
+    monkeypatch.setattr(Solver, "advance", stopping_after(12))
     code, err = cli(monkeypatch, capsys, "run", "--resume", out, "--quiet")
     assert code == 130 and "the run started with 7 Numba threads" in err
     assert latest(out).frame == 12 and latest(out).attrs["threads"] == 7
@@ -283,13 +282,7 @@ def test_plastic_run_resumes_bitwise_with_its_reverse_bonds(scene, tmp_path, mon
     simulate(prepare(scene, plastic), reference, overwrite=True)
     out = tmp_path / "run"
     advance = Solver.advance
-
-    def stop(self, state, t_end, on_substep=None):
-        if t_end > 8.5 * self.plan.frame_dt:
-            raise KeyboardInterrupt
-        advance(self, state, t_end, on_substep)
-
-    monkeypatch.setattr(Solver, "advance", stop)
+    monkeypatch.setattr(Solver, "advance", stopping_after(8))
     with pytest.raises(KeyboardInterrupt):
         simulate(prepare(scene, plastic), out, overwrite=True)
     monkeypatch.setattr(Solver, "advance", advance)
