@@ -32,16 +32,20 @@ class CpuBackend:
     def run(self, kernel, start, end, *args):
         return kernel.cpu(start, end, *args)
 
-    def node_box(self, solver, state) -> np.ndarray:
-        """Node index box [i0, i1) x [j0, j1) x [k0, k1) touched by the particles' B-spline stencils."""
-        lo, hi = position_bounds(state.particle_x)
-        return solver.box_of(lo, hi)
-
-    def contact_box(self, solver, state) -> np.ndarray:
-        """`contact.overlap_box` of the bodies' node boxes: the only nodes where two fields can have mass."""
+    def node_boxes(self, solver, state) -> tuple[np.ndarray, np.ndarray | None]:
+        """Node index box [i0, i1) x [j0, j1) x [k0, k1) touched by the particles' B-spline stencils, and with a
+        field per body (plan.contact) `contact.overlap_box` of the bodies' own boxes, the only nodes where two fields
+        can have mass. The node box is then the union of the bodies' boxes, so every position is read once."""
+        if not solver.plan.contact:
+            return solver.box_of(*position_bounds(state.particle_x)), None
         boxes = [solver.box_of(*position_bounds(state.particle_x[b.start:b.end])) if b.end > b.start else None
                  for b in solver.model.bodies]
-        return overlap_box(boxes)
+        live = np.array([b for b in boxes if b is not None])
+        if not len(live):
+            return solver.box_of(*position_bounds(state.particle_x)), overlap_box(boxes)
+        union = np.empty(6, dtype=np.int64)
+        union[0::2], union[1::2] = live[:, 0::2].min(axis=0), live[:, 1::2].max(axis=0)
+        return union, overlap_box(boxes)
 
     @staticmethod
     def fields(solver, state):
@@ -53,9 +57,7 @@ class CpuBackend:
 
     def p2g(self, solver, state, dt) -> int:
         m = solver.model
-        solver.box = self.node_box(solver, state)
-        if solver.plan.contact:
-            solver.contact_box = self.contact_box(solver, state)
+        solver.box, solver.contact_box = self.node_boxes(solver, state)
         outside = 0
         for f, (grid, s, e) in enumerate(self.fields(solver, state)):
             outside += p2g(state.particle_x[s:e], state.particle_v[s:e], state.particle_C[s:e], m.particle_mass[s:e],
