@@ -22,6 +22,7 @@ import numpy as np
 
 from pdmpm_cli.engine.state import State
 from pdmpm_cli.engine.solver import Solver
+from pdmpm_cli.errors import InputError
 from pdmpm_cli.io.atomic import atomic_write_text
 from pdmpm_cli.runner import Prepared, prepare, start_in_memory
 from pdmpm_cli.scene.loader import load_scene, merge, parse_overrides
@@ -123,8 +124,6 @@ def _ladders(name: str, quantity: str, space: list, timed: Callable[[float], obj
 def simulation_changes(overrides) -> dict:
     """`simulation.key=value` overrides as a scene dict (a built-in problem takes no other: its geometry is what
     its analytic value describes)."""
-    from pdmpm_cli.errors import InputError
-
     changes = {}
     for keys, value in parse_overrides(list(overrides)):
         if len(keys) != 2 or keys[0] != "simulation" or keys[1] in ("duration", "fps", "dt"):
@@ -140,7 +139,10 @@ def problem_study(problem: Problem, levels: int, time_levels: int, finest: float
     (`simulation.key=value`, as --set) change every run's simulation section (the step rule, say)."""
     cells = cell_ladder(finest or problem.finest, ratio or problem.ratio, levels)
     changes = simulation_changes(overrides)
-    scene_of = lambda cell: merge(problem.scene(cell), changes)  # noqa: E731
+
+    def scene_of(cell: float) -> dict:
+        return merge(problem.scene(cell), changes)
+
     warm = Sim(scene_of(cells[0]))
     _warm_up(warm.solver, warm.state)
 
