@@ -98,7 +98,7 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
         dt_max, binding = sim.dt, "user"
     used = list(dict.fromkeys(kinds))
     phases = ["fbar"] if need_fbar else []
-    for hook in ("before_forces", "forces", "after_forces"):  # each named by its function: return_map:plastic
+    for hook in ("before_forces", "forces", "after_forces"):  # each named by its function: dilatation:plastic
         phases += [f"{getattr(k, hook).__name__}:{k.name}" for k in used if getattr(k, hook) is not None]
     if model.emitter is not None:  # births after the force hooks (engine.emitter)
         phases.append("emit")

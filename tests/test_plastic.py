@@ -5,7 +5,7 @@ import numpy as np
 from pdmpm_cli.engine.bonds import averaged_deformation
 from pdmpm_cli.engine.parallel import particle_chunks
 from pdmpm_cli.engine.materials.elastic import averaged_bond
-from pdmpm_cli.engine.materials.plastic import bond_dilatation, plastic_return_map, reverse_slots
+from pdmpm_cli.engine.materials.plastic import bond_dilatation, plastic_forces, reverse_slots
 
 from tests.conftest import BASE, merge
 
@@ -30,6 +30,17 @@ def fbar_of(sim, x, fbar):
     m = sim.model
     averaged_deformation(0, m.n_particles, x, m.rest_x, m.bond_start, m.bond_nbr, sim.state.bond_wv, m.particle_Kinv,
                          fbar, particle_chunks())
+
+
+def return_map(sim, x, fbar, theta, lam, mu, psi, rev, ep):
+    """The dilatations, then the return map of every bond at positions x, e_p in place (the pass also gives the bond
+    forces, not used here); returns the largest f / psi_p after the map."""
+    m, n = sim.model, sim.model.n_particles
+    bond_dilatation(0, n, m.body_horizon[0], x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, NONE_U1, theta,
+                    particle_chunks())
+    return plastic_forces(0, n, lam, mu, psi, x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr,
+                          sim.state.bond_wv, sim.state.bond_inv_len, NONE_U1, ep, NONE_U1, m.particle_coef, fbar, theta,
+                          rev, np.zeros((1, n, 3)))
 
 
 def shear_stress(m, x, fbar, ep, p, lam, mu, delta):
@@ -69,9 +80,7 @@ def test_shear_load_unload_reload(sim_factory):
         x = m.rest_x.copy()
         x[:, 0] += g * (m.rest_x[:, 1] - c[1])
         fbar_of(sim, x, fbar)
-        bond_dilatation(0, n, delta, x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, NONE_U1, theta)
-        worst = max(worst, plastic_return_map(0, n, lam, mu, 0.5 * sy**2, x, m.rest_x, m.bond_start, m.bond_nbr,
-                                              NONE_U1, NONE_U1, fbar, theta, rev, ep))
+        worst = max(worst, return_map(sim, x, fbar, theta, lam, mu, 0.5 * sy**2, rev, ep))
         stress.append(shear_stress(m, x, fbar, ep, p, lam, mu, delta))
     stress = np.array(stress)
     g0 = stress[1] / path[1]  # initial shear modulus of the lattice
@@ -105,10 +114,7 @@ def test_return_map_bounded_under_sustained_flow(sim_factory):
         x = m.rest_x.copy()
         x[:, 0] += g * m.rest_x[:, 1]
         fbar_of(sim, x, fbar)
-        bond_dilatation(0, n, m.body_horizon[0], x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, NONE_U1,
-                        theta)
-        worst = max(worst, plastic_return_map(0, n, lam, mu, 0.5 * sy**2, x, m.rest_x, m.bond_start, m.bond_nbr,
-                                              NONE_U1, NONE_U1, fbar, theta, rev, ep))
+        worst = max(worst, return_map(sim, x, fbar, theta, lam, mu, 0.5 * sy**2, rev, ep))
     assert worst <= 1e-9 and np.isfinite(ep).all()
     assert np.abs(ep).max() < 0.5  # bounded by the total bond strain
 
@@ -126,9 +132,7 @@ def test_return_map_is_symmetric_and_rotation_free(sim_factory):
     rev = reverse_of(m)
     x = m.rest_x + 1e-3 * rng.standard_normal(m.rest_x.shape)
     fbar_of(sim, x, fbar)
-    bond_dilatation(0, n, m.body_horizon[0], x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, NONE_U1, theta)
-    plastic_return_map(0, n, 1e5, 1e5, 1.0, x, m.rest_x, m.bond_start, m.bond_nbr, NONE_U1, NONE_U1, fbar, theta, rev,
-                       ep)
+    return_map(sim, x, fbar, theta, 1e5, 1e5, 1.0, rev, ep)
     src = np.repeat(np.arange(n), np.diff(m.bond_start))
     key = src * n + m.bond_nbr
     rev = np.searchsorted(key, m.bond_nbr.astype(np.int64) * n + src)
@@ -138,9 +142,7 @@ def test_return_map_is_symmetric_and_rotation_free(sim_factory):
     ep[:] = 0.0
     x = m.rest_x @ rot.T
     fbar_of(sim, x, fbar)
-    bond_dilatation(0, n, m.body_horizon[0], x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, NONE_U1, theta)
-    plastic_return_map(0, n, 1e5, 1e5, 1.0, x, m.rest_x, m.bond_start, m.bond_nbr, NONE_U1, NONE_U1, fbar, theta, rev,
-                       ep)
+    return_map(sim, x, fbar, theta, 1e5, 1e5, 1.0, rev, ep)
     assert np.abs(ep).max() < 1e-12
 
 
@@ -148,12 +150,12 @@ def test_elastic_limit_leaves_out_plastic_pass(sim_factory):
     """psi_p = 1e25 (Table 1's "elastic") runs as an elastic body: no return map and no per-bond arrays."""
     plastic = block(sim_factory, {"model": "plastic", "density": 1000.0, "lam": 1e5, "mu": 1e5, "psi_p": 100.0},
                     size=0.3)
-    assert "return_map:plastic" in plastic.plan.phases and "bond_ep" in plastic.plan.fields
+    assert {"dilatation:plastic", "bonds:plastic"} <= set(plastic.plan.phases) and "bond_ep" in plastic.plan.fields
     assert plastic.state.bond_ep.shape == (plastic.plan.bonds,)
     elastic = block(sim_factory, {"model": "plastic", "density": 1000.0, "lam": 1e5, "mu": 1e5, "psi_p": 1e25},
                     size=0.3)
     assert elastic.plan.bodies[0].model == "elastic"
-    assert not any(p.startswith("return_map") for p in elastic.plan.phases)
+    assert "bonds:elastic" in elastic.plan.phases and not any(p.endswith(":plastic") for p in elastic.plan.phases)
     assert not {"bond_ep", "particle_theta"} & set(elastic.plan.fields)
     assert elastic.state.bond_ep.shape == (0,) and elastic.state.particle_theta.shape == (0,)
 

@@ -161,7 +161,7 @@ class Solver:
         if self.plan.fbar:
             self.fbar()
         for i, kind in enumerate(self.kinds):
-            kind.forces(self, i, dt)
+            (kind.bond_forces or kind.forces)(self, i, dt)
 
     def fbar(self):
         """Eq. 4 for the bodies whose material uses Fbar."""

@@ -27,7 +27,9 @@ class MaterialKind:
     constants: Callable[[Any], dict]  # params -> effective isotropic constants (p_wave_modulus, wave_speed, ...)
     energy: Callable | None = None  # (solver, body) -> stored strain energy [J] on the host State (Fbar current)
     fields: tuple[Field, ...] = ()  # the material's own arrays
-    before_forces: Callable | None = None  # e.g. the plastic return map
+    bond_forces: Callable | None = None  # the forces alone, for Solver.bond_forces (the stiffness probes), where
+    # `forces` also does other work of the step (the plastic return map); None: forces
+    before_forces: Callable | None = None  # e.g. the plastic dilatations
     after_forces: Callable | None = None  # e.g. rebuilding the families of a flowing body
     after_move: Callable | None = None  # after the particles moved (G2P), e.g. a liquid's particle shift
     moves: Callable[[Any], bool] = lambda params: True  # whether after_move has work for a body with these params

@@ -33,6 +33,7 @@ from pdmpm_cli.engine.materials.base import MaterialKind
 from pdmpm_cli.spec import Strict
 
 TINY = 1e-300  # floor of a squared bond length: a zero-length bond gets a finite coefficient times a zero vector
+ROOT_TINY = math.sqrt(TINY)  # floor of a bond length: max(sqrt(x), ROOT_TINY) = sqrt(max(x, TINY)) to the bit
 
 
 class Schema(Strict):
@@ -76,12 +77,21 @@ def pair_force(has_mu, lam, mu, cp, cq, a, ir, one_ep, e0, e1, e2, y0, y1, y2, z
     """G = V_p V_q (T<p,q> - T<q,p>) of bond p -> q (eqs. 6-7, 9): the force on p, -G on q.
 
     a = w V_q V_p / |xi|, ir = 1 / |xi|, one_ep = 1 + e_p; eta = e, Ybar_p = y, Ybar_q = z (= Fbar_q xi, or eta for a
-    crack particle). Each strain (|y|/|xi| - 1 - e_p)/|y| is 1/|xi| - (1 + e_p)/|y|, and the three 1/|y| share one
-    division: 1/|eta| = |Ybar_p| |Ybar_q| / (|eta| |Ybar_p| |Ybar_q|), and so on."""
+    crack particle)."""
     le = math.sqrt(max(e0 * e0 + e1 * e1 + e2 * e2, TINY))
+    ly = lz = 0.0
     if has_mu:
         ly = math.sqrt(max(y0 * y0 + y1 * y1 + y2 * y2, TINY))
         lz = math.sqrt(max(z0 * z0 + z1 * z1 + z2 * z2, TINY))
+    return pair_force_of(has_mu, lam, mu, cp, cq, a, ir, one_ep, le, ly, lz, e0, e1, e2, y0, y1, y2, z0, z1, z2)
+
+
+@njit(cache=True, inline="always")
+def pair_force_of(has_mu, lam, mu, cp, cq, a, ir, one_ep, le, ly, lz, e0, e1, e2, y0, y1, y2, z0, z1, z2):
+    """`pair_force` given the lengths le, ly, lz of eta, Ybar_p, Ybar_q (each at least ROOT_TINY). Each strain
+    (|y|/|xi| - 1 - e_p)/|y| is 1/|xi| - (1 + e_p)/|y|, and the three 1/|y| share one division:
+    1/|eta| = |Ybar_p| |Ybar_q| / (|eta| |Ybar_p| |Ybar_q|), and so on."""
+    if has_mu:
         inv = one_ep / max(le * ly * lz, TINY)
         gy = a * 2.0 * mu * cp * (ir - inv * le * lz)
         gz = a * 2.0 * mu * cq * (ir - inv * le * ly)

@@ -15,9 +15,13 @@ is the force's yield limit; measuring s alone let a flattened soft block gain st
 e_iso is the isotropic part of the bond strain: the mean of the pair's two particle dilatations / 3, where a
 particle's dilatation theta_p = 3 sum_q w |xi|^2 s V_q / sum_q w |xi|^2 V_q (the LPS dilatation written with
 strains; unlike tr(Fbar) - 3 it is zero under any rigid rotation and defined for cloth). Using the pair mean
-makes e_p identical on both stored directions of a bond, so forces stay pairwise equal and opposite. The return map
-therefore runs once per bond pair, at its lower-index particle, and copies e_p to the reverse bond (`bond_reverse`:
-the slot of q -> p in q's family, found once at the start and checkpointed with e_p).
+makes e_p identical on both stored directions of a bond, so forces stay pairwise equal and opposite.
+
+A pair's force reads only its own e_p, so the map runs inside the force pass, each bond just before its force, on the
+eta and Ybar the force needs anyway; only the dilatations (every pair reads both ends') need a pass of their own
+before it. The CPU's pair pass maps each pair once, at its lower-index particle, and copies e_p to the reverse bond
+(`bond_reverse`: the slot of q -> p in q's family, found once at the start and checkpointed with e_p); the GPU's
+threads map each bond from both ends, each writing its own side.
 """
 
 import math
@@ -28,12 +32,13 @@ import numpy as np
 from numba import njit, prange
 from pydantic import Field as Doc, model_validator
 
-from pdmpm_cli.engine.bonds import bond_vector, influence
+from pdmpm_cli.engine.bonds import bond_vector, chunk_width, influence
 from pdmpm_cli.engine.fields import BOND, PARTICLE, Field
 from pdmpm_cli.engine.kernel import Kernel
 from pdmpm_cli.engine.materials import elastic
-from pdmpm_cli.engine.materials.elastic import averaged_bond
+from pdmpm_cli.engine.materials.elastic import ROOT_TINY, averaged_bond, pair_force_of, sum_forces
 from pdmpm_cli.engine.materials.base import MaterialKind
+from pdmpm_cli.engine.parallel import particle_chunks
 
 ELASTIC_PSI = 1e20  # psi_p at or above this means the bonds never yield (Table 1 writes 1e25 for "elastic")
 
@@ -71,7 +76,8 @@ def params(section) -> elastic.Params:
 
 
 @njit(cache=True)
-def dilatation_at(p, delta, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_active, particle_theta):
+def dilatation_at(p, delta, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_active, particle_theta,
+                  chunks):
     """theta_p = 3 sum w |xi|^2 s V_q / sum w |xi|^2 V_q over intact bonds (e_iso of eq. 9) -> particle_theta[p]."""
     has_active = bond_active.shape[0] > 0
     num = 0.0
@@ -88,12 +94,41 @@ def dilatation_at(p, delta, particle_x, rest_x, particle_volume, bond_start, bon
     particle_theta[p] = 3.0 * num / den if den > 0.0 else 0.0
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, error_model="numpy")  # no fastmath: see parallel.py
 def bond_dilatation(start, end, delta, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_active,
-                    particle_theta):
-    """`dilatation_at` for particles start..end-1."""
-    for p in prange(start, end):
-        dilatation_at(p, delta, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_active, particle_theta)
+                    particle_theta, chunks):
+    """`dilatation_at` for particles start..end-1, the CPU's form: per particle, a loop gathers the intact bonds'
+    xi, eta and V_q into contiguous scratch rows, a loop without gathers or sums turns each into its two terms (the
+    square roots and divisions, which the compiler can vectorise), and a third sums them in bond order (to the
+    bit the sums of `dilatation_at`)."""
+    has_active = bond_active.shape[0] > 0
+    n = end - start
+    for t in prange(chunks):
+        lo, hi = start + t * n // chunks, start + (t + 1) * n // chunks
+        s = np.empty((7, chunk_width(bond_start, lo, hi)))  # xi (3), eta (3), V_q; then the two terms in 0, 1
+        for p in range(lo, hi):
+            r0, r1, r2 = rest_x[p, 0], rest_x[p, 1], rest_x[p, 2]
+            p0, p1, p2 = particle_x[p, 0], particle_x[p, 1], particle_x[p, 2]
+            m = 0
+            for b in range(bond_start[p], bond_start[p + 1]):
+                if has_active and bond_active[b] == 0:
+                    continue
+                q = bond_nbr[b]
+                s[0, m], s[1, m], s[2, m] = rest_x[q, 0] - r0, rest_x[q, 1] - r1, rest_x[q, 2] - r2
+                s[3, m], s[4, m], s[5, m] = particle_x[q, 0] - p0, particle_x[q, 1] - p1, particle_x[q, 2] - p2
+                s[6, m] = particle_volume[q]
+                m += 1
+            for k in range(m):
+                r = math.sqrt(s[0, k] * s[0, k] + s[1, k] * s[1, k] + s[2, k] * s[2, k])
+                l = math.sqrt(s[3, k] * s[3, k] + s[4, k] * s[4, k] + s[5, k] * s[5, k])
+                wv = influence(r, delta) * r * r * s[6, k]
+                s[0, k], s[1, k] = wv * (l / r - 1.0), wv
+            num = 0.0
+            den = 0.0
+            for k in range(m):
+                num += s[0, k]
+                den += s[1, k]
+            particle_theta[p] = 3.0 * num / den if den > 0.0 else 0.0
 
 
 @njit(cache=True)
@@ -108,59 +143,171 @@ def reverse_slots(bond_start, bond_nbr, start, end, bond_reverse):
                     break
 
 
-@njit(cache=True)
-def return_map_at(p, lam, mu, psi, particle_x, rest_x, bond_start, bond_nbr, bond_active, particle_crack,
-                  particle_Fbar, particle_theta, bond_reverse, bond_ep):
-    """Eqs. 10-11 for every yielding bond p -> q with q > p, bond_ep in place on it and its reverse q -> p; returns
-    the largest f / psi_p after (-1 for no such bond).
+@njit(cache=True, inline="always")
+def returned_force(has_mu, lam, mu, psi, r, tp, tq, ep, cp, cq, a, ir, e0, e1, e2, y0, y1, y2, z0, z1, z2):
+    """Eqs. 10-11 on bond p -> q, then its force G (elastic.pair_force with the new e_p): returns e_p, f / psi_p
+    after the map, and G.
 
     The bond strain is the one the force of eq. 9 acts on (elastic.py): (lam s + mu (sbar_p + sbar_q)) / M, with
-    s = |eta|/|xi| - 1 and sbar = |Fbar xi|/|xi| - 1 (s for a crack particle). Both stored directions of a bond see
-    the same strain and pair mean of theta (to the bit), so one update serves both; each pair is written by one
-    particle only (families are symmetric, and cuts remove both directions)."""
-    has_active = bond_active.shape[0] > 0
-    has_crack = particle_crack.shape[0] > 0
+    s = |eta|/|xi| - 1 and sbar = |Ybar|/|xi| - 1 (eta = e, Ybar_p = y, Ybar_q = z: Fbar xi, or eta for a crack
+    particle); tp, tq are the pair's dilatations, r = |xi|. Both stored directions of a bond see the same strain and
+    pair mean of theta (to the bit: e, y and z only change sign, and the sums are symmetric), so either end gets the
+    same e_p. The force reuses the three lengths (floored as pair_force floors them)."""
     modulus = lam + 2.0 * mu
     limit = math.sqrt(2.0 * psi)
-    tp = particle_theta[p]
-    p_crack = has_crack and particle_crack[p] != 0
-    fmax = -1.0
-    for b in range(bond_start[p], bond_start[p + 1]):
-        q = bond_nbr[b]
-        if q < p or (has_active and bond_active[b] == 0):
-            continue
-        x0, x1, x2, r = bond_vector(rest_x, p, q)
-        s = bond_vector(particle_x, p, q)[3] / r - 1.0
-        strain = s
-        if mu > 0.0:
-            sp = s if p_crack else averaged_bond(particle_Fbar[p], x0, x1, x2)[3] / r - 1.0
-            q_crack = has_crack and particle_crack[q] != 0
-            sq = s if q_crack else averaged_bond(particle_Fbar[q], x0, x1, x2)[3] / r - 1.0
-            strain = (lam * s + mu * (sp + sq)) / modulus
-        e_dev = strain - (tp + particle_theta[q]) / 6.0
-        e = modulus * (e_dev - bond_ep[b])
-        if abs(e) > limit:
-            bond_ep[b] += (e - math.copysign(limit, e)) / modulus
-            bond_ep[bond_start[q] + bond_reverse[b]] = bond_ep[b]
-            e = modulus * (e_dev - bond_ep[b])
-        fmax = max(fmax, (0.5 * e * e - psi) / psi)
+    le = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    ly = lz = 0.0
+    strain = le / r - 1.0
+    if has_mu:
+        ly = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
+        lz = math.sqrt(z0 * z0 + z1 * z1 + z2 * z2)
+        strain = (lam * strain + mu * ((ly / r - 1.0) + (lz / r - 1.0))) / modulus
+    e_dev = strain - (tp + tq) / 6.0
+    e = modulus * (e_dev - ep)
+    if abs(e) > limit:
+        ep += (e - math.copysign(limit, e)) / modulus
+        e = modulus * (e_dev - ep)
+    g0, g1, g2 = pair_force_of(has_mu, lam, mu, cp, cq, a, ir, 1.0 + ep, max(le, ROOT_TINY), max(ly, ROOT_TINY),
+                               max(lz, ROOT_TINY), e0, e1, e2, y0, y1, y2, z0, z1, z2)
+    return ep, (0.5 * e * e - psi) / psi, g0, g1, g2
+
+
+@njit(parallel=True, cache=True, error_model="numpy")  # no fastmath: see parallel.py
+def plastic_forces(start, end, lam, mu, psi, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_wv,
+                   bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, particle_theta,
+                   bond_reverse, force_private):
+    """The return map and the bond forces (eqs. 6-7, 9-11) of particles start..end-1 in one pass: elastic.py's pair
+    pass, each pair's e_p returned just before its force (`returned_force`), on the same eta, Ybar_p and Ybar_q, and
+    written to both of its stored directions (`bond_reverse`: q -> p's slot in q's family). A pair's force reads only
+    its own e_p, so this is the map for every bond followed by the forces. -> force_private (one force array per
+    thread, as elastic_forces); returns the largest f / psi_p after the map (-1 for no bond)."""
+    has_active, has_crack, has_mu = bond_active.shape[0] > 0, particle_crack.shape[0] > 0, mu > 0.0
+    nt, n = force_private.shape[0], end - start
+    worst = np.full(nt, -1.0)
+    for t in prange(nt):
+        f = force_private[t]
+        for p in range(start, end):
+            f[p, 0] = f[p, 1] = f[p, 2] = 0.0
+        lo, hi = start + t * n // nt, start + (t + 1) * n // nt
+        width = chunk_width(bond_start, lo, hi)
+        s = np.zeros((15, width))  # eta, Ybar_p, Ybar_q (3 each), w V_q, 1 / |xi|, c_q, e_p, |xi| (then f / psi_p),
+        # theta_q
+        pair = np.zeros((3, width))  # G of each pair
+        slot = np.zeros(width, dtype=np.int64)  # the bond p -> q
+        fmax = -1.0
+        for p in range(lo, hi):
+            r0, r1, r2 = rest_x[p, 0], rest_x[p, 1], rest_x[p, 2]
+            p0, p1, p2 = particle_x[p, 0], particle_x[p, 1], particle_x[p, 2]
+            fp = p if has_mu else 0
+            a00, a01, a02 = particle_Fbar[fp, 0, 0], particle_Fbar[fp, 0, 1], particle_Fbar[fp, 0, 2]
+            a10, a11, a12 = particle_Fbar[fp, 1, 0], particle_Fbar[fp, 1, 1], particle_Fbar[fp, 1, 2]
+            a20, a21, a22 = particle_Fbar[fp, 2, 0], particle_Fbar[fp, 2, 1], particle_Fbar[fp, 2, 2]
+            p_crack = has_crack and particle_crack[p] != 0
+            m = 0
+            for b in range(bond_start[p], bond_start[p + 1]):
+                q = bond_nbr[b]
+                if q < p or (has_active and bond_active[b] == 0):
+                    continue
+                e0, e1, e2 = particle_x[q, 0] - p0, particle_x[q, 1] - p1, particle_x[q, 2] - p2
+                x0, x1, x2 = rest_x[q, 0] - r0, rest_x[q, 1] - r1, rest_x[q, 2] - r2
+                s[0, m], s[1, m], s[2, m] = e0, e1, e2
+                if has_mu:
+                    if p_crack:
+                        s[3, m], s[4, m], s[5, m] = e0, e1, e2
+                    else:
+                        s[3, m] = a00 * x0 + a01 * x1 + a02 * x2
+                        s[4, m] = a10 * x0 + a11 * x1 + a12 * x2
+                        s[5, m] = a20 * x0 + a21 * x1 + a22 * x2
+                    if has_crack and particle_crack[q] != 0:
+                        s[6, m], s[7, m], s[8, m] = e0, e1, e2
+                    else:
+                        for i in range(3):
+                            s[6 + i, m] = (particle_Fbar[q, i, 0] * x0 + particle_Fbar[q, i, 1] * x1
+                                           + particle_Fbar[q, i, 2] * x2)
+                s[9, m], s[10, m], s[11, m] = bond_wv[b], bond_inv_len[b], particle_coef[q]
+                s[12, m], s[13, m], s[14, m] = bond_ep[b], math.sqrt(x0 * x0 + x1 * x1 + x2 * x2), particle_theta[q]
+                slot[m] = b
+                m += 1
+            cp, vp, tp = particle_coef[p], particle_volume[p], particle_theta[p]
+            for k in range(m):
+                ep, ratio, g0, g1, g2 = returned_force(has_mu, lam, mu, psi, s[13, k], tp, s[14, k], s[12, k], cp,
+                                                       s[11, k], s[9, k] * s[10, k] * vp, s[10, k], s[0, k], s[1, k],
+                                                       s[2, k], s[3, k], s[4, k], s[5, k], s[6, k], s[7, k], s[8, k])
+                pair[0, k], pair[1, k], pair[2, k] = g0, g1, g2
+                s[12, k], s[13, k] = ep, ratio
+            f0 = f1 = f2 = 0.0
+            for k in range(m):
+                f0 += pair[0, k]
+                f1 += pair[1, k]
+                f2 += pair[2, k]
+                fmax = max(fmax, s[13, k])
+                b = slot[k]
+                q = bond_nbr[b]
+                f[q, 0] -= pair[0, k]
+                f[q, 1] -= pair[1, k]
+                f[q, 2] -= pair[2, k]
+                if s[12, k] != bond_ep[b]:
+                    bond_ep[b] = s[12, k]
+                    bond_ep[bond_start[q] + bond_reverse[b]] = s[12, k]
+            f[p, 0] += f0
+            f[p, 1] += f1
+            f[p, 2] += f2
+        worst[t] = fmax
+    return worst.max()
+
+
+def plastic_forces_cpu(start, end, lam, mu, psi, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_wv,
+                       bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, particle_theta,
+                       bond_reverse, particle_force, force_private):
+    """The CPU loop of PLASTIC_FORCES: the pair pass, then the per-thread arrays summed into particle_force; returns
+    the largest f / psi_p after the map."""
+    fmax = plastic_forces(start, end, lam, mu, psi, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_wv,
+                          bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar,
+                          particle_theta, bond_reverse, force_private)
+    sum_forces(start, end, force_private, particle_force)
     return fmax
 
 
-@njit(parallel=True, cache=True)
-def plastic_return_map(start, end, lam, mu, psi, particle_x, rest_x, bond_start, bond_nbr, bond_active, particle_crack,
-                       particle_Fbar, particle_theta, bond_reverse, bond_ep):
-    """`return_map_at` for particles start..end-1; returns the largest f / psi_p after the update (0 up to round-off
-    when the map is exact, -1 for no particles)."""
-    worst = np.full(end - start, -1.0)
-    for p in prange(start, end):
-        worst[p - start] = return_map_at(p, lam, mu, psi, particle_x, rest_x, bond_start, bond_nbr, bond_active,
-                                         particle_crack, particle_Fbar, particle_theta, bond_reverse, bond_ep)
-    return worst.max() if end > start else -1.0
+@njit(cache=True)
+def plastic_force_at(p, lam, mu, psi, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_wv,
+                     bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, particle_theta,
+                     bond_reverse, particle_force, force_private):
+    """The GPU's form of `plastic_forces` (one thread per particle, no atomics): every intact bond of p is returned
+    and its e_p written on p's side only (the other end's thread returns the same e_p on its side), then
+    f_p = sum_q G as in elastic_force_at; returns the largest f / psi_p after the map (-1 for no bond)."""
+    has_active, has_crack, has_mu = bond_active.shape[0] > 0, particle_crack.shape[0] > 0, mu > 0.0
+    cp, vp, tp = particle_coef[p], particle_volume[p], particle_theta[p]
+    p_crack = has_crack and particle_crack[p] != 0
+    fmax = -1.0
+    f0 = f1 = f2 = 0.0
+    for b in range(bond_start[p], bond_start[p + 1]):
+        if has_active and bond_active[b] == 0:
+            continue
+        q = bond_nbr[b]
+        x0, x1, x2, r = bond_vector(rest_x, p, q)
+        e0, e1, e2, _ = bond_vector(particle_x, p, q)
+        y0, y1, y2, z0, z1, z2 = e0, e1, e2, e0, e1, e2
+        if has_mu:
+            if not p_crack:
+                y0, y1, y2, _ = averaged_bond(particle_Fbar[p], x0, x1, x2)
+            if not (has_crack and particle_crack[q] != 0):
+                z0, z1, z2, _ = averaged_bond(particle_Fbar[q], x0, x1, x2)
+        ep, ratio, g0, g1, g2 = returned_force(has_mu, lam, mu, psi, r, tp, particle_theta[q], bond_ep[b], cp,
+                                               particle_coef[q], bond_wv[b] * bond_inv_len[b] * vp, bond_inv_len[b],
+                                               e0, e1, e2, y0, y1, y2, z0, z1, z2)
+        bond_ep[b] = ep
+        fmax = max(fmax, ratio)
+        f0 += g0
+        f1 += g1
+        f2 += g2
+    particle_force[p, 0] = f0
+    particle_force[p, 1] = f1
+    particle_force[p, 2] = f2
+    return fmax
 
 
 DILATATION = Kernel(dilatation_at, bond_dilatation)
-RETURN_MAP = Kernel(return_map_at, plastic_return_map, reduce="max")
+PLASTIC_FORCES = Kernel(plastic_force_at, plastic_forces_cpu, reduce="max")
 
 
 @njit(parallel=True, cache=True)
@@ -174,15 +321,22 @@ def particle_plastic_strain(bond_start, bond_ep, out):
         out[p] = acc / n if n > 0 else 0.0
 
 
-def return_map(solver, body: int, dt: float):
-    """Before the forces: dilatations, then eqs. 10-11 on every bond of the body; keeps the largest f / psi_p."""
+def dilatation(solver, body: int, dt: float):
+    """Before the forces: every particle's dilatation (e_iso of eq. 9), which the return map of both ends reads."""
     b, a, m = solver.model.bodies[body], solver.a, solver.m
-    run = solver.backend.run
-    run(DILATATION, b.start, b.end, b.horizon, a.particle_x, m.rest_x, m.particle_volume, a.bond_start, a.bond_nbr,
-        a.bond_active, a.particle_theta)
-    residual = run(RETURN_MAP, b.start, b.end, b.params.lam, b.params.mu, b.params.psi, a.particle_x, m.rest_x,
-                   a.bond_start, a.bond_nbr, a.bond_active, a.particle_crack, a.particle_Fbar, a.particle_theta,
-                   a.bond_reverse, a.bond_ep)
+    solver.backend.run(DILATATION, b.start, b.end, b.horizon, a.particle_x, m.rest_x, m.particle_volume, a.bond_start,
+                       a.bond_nbr, a.bond_active, a.particle_theta, particle_chunks())
+
+
+def bonds(solver, body: int, dt: float):
+    """Eqs. 10-11 on every bond of the body, then its bond forces (eqs. 6-7, 9) -> particle_force, in one pass;
+    keeps the largest f / psi_p."""
+    b, a, m = solver.model.bodies[body], solver.a, solver.m
+    residual = solver.backend.run(PLASTIC_FORCES, b.start, b.end, b.params.lam, b.params.mu, b.params.psi,
+                                  a.particle_x, m.rest_x, m.particle_volume, a.bond_start, a.bond_nbr, a.bond_wv,
+                                  a.bond_inv_len, a.bond_active, a.bond_ep, a.particle_crack, m.particle_coef,
+                                  a.particle_Fbar, a.particle_theta, a.bond_reverse, a.particle_force,
+                                  a.particle_force_private)
     solver.state.yield_residual = max(solver.state.yield_residual, residual)
 
 
@@ -199,8 +353,8 @@ def plastic_strain(model, state) -> np.ndarray:
 
 
 KIND = MaterialKind(
-    name="plastic", schema=Schema, params=params, forces=elastic.bonds, constants=elastic.constants,
-    energy=elastic.energy, before_forces=return_map, start=start, uses_fbar=lambda p: p.mu > 0,
+    name="plastic", schema=Schema, params=params, forces=bonds, bond_forces=elastic.bonds, constants=elastic.constants,
+    energy=elastic.energy, before_forces=dilatation, start=start, uses_fbar=lambda p: p.mu > 0,
     fields=elastic.KIND.fields + (
         Field("bond_ep", BOND, doc="plastic strain per bond (eq. 9) [-]"),
         Field("bond_reverse", BOND, dtype="i8", doc="slot of the reverse bond q -> p in q's family [-]"),
