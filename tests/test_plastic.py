@@ -2,10 +2,9 @@
 
 import numpy as np
 
-from pdmpm_cli.engine.bonds import averaged_deformation
 from pdmpm_cli.engine.parallel import particle_chunks
 from pdmpm_cli.engine.materials.elastic import averaged_bond
-from pdmpm_cli.engine.materials.plastic import bond_dilatation, plastic_forces, reverse_slots
+from pdmpm_cli.engine.materials.plastic import fbar_dilatation, plastic_forces, reverse_slots
 
 from tests.conftest import BASE, merge
 
@@ -25,19 +24,12 @@ def reverse_of(m):
     return out
 
 
-def fbar_of(sim, x, fbar):
-    """Eq. 4's Fbar of every particle of a Sim at positions x -> fbar."""
-    m = sim.model
-    averaged_deformation(0, m.n_particles, x, m.rest_x, m.bond_start, m.bond_nbr, sim.state.bond_wv, m.particle_Kinv,
-                         fbar, particle_chunks())
-
-
 def return_map(sim, x, fbar, theta, lam, mu, psi, rev, ep):
-    """The dilatations, then the return map of every bond at positions x, e_p in place (the pass also gives the bond
-    forces, not used here); returns the largest f / psi_p after the map."""
+    """Fbar (eq. 4) and the dilatations, then the return map of every bond at positions x, e_p in place (the pass
+    also gives the bond forces, not used here); returns the largest f / psi_p after the map."""
     m, n = sim.model, sim.model.n_particles
-    bond_dilatation(0, n, m.body_horizon[0], x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr, NONE_U1, theta,
-                    particle_chunks())
+    fbar_dilatation(0, n, m.body_horizon[0], mu, x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr,
+                    sim.state.bond_wv, NONE_U1, m.particle_Kinv, fbar, theta, particle_chunks())
     return plastic_forces(0, n, lam, mu, psi, x, m.rest_x, m.particle_volume, m.bond_start, m.bond_nbr,
                           sim.state.bond_wv, sim.state.bond_inv_len, NONE_U1, ep, NONE_U1, m.particle_coef, fbar, theta,
                           rev, np.zeros((1, n, 3)))
@@ -79,7 +71,6 @@ def test_shear_load_unload_reload(sim_factory):
     for g in path:
         x = m.rest_x.copy()
         x[:, 0] += g * (m.rest_x[:, 1] - c[1])
-        fbar_of(sim, x, fbar)
         worst = max(worst, return_map(sim, x, fbar, theta, lam, mu, 0.5 * sy**2, rev, ep))
         stress.append(shear_stress(m, x, fbar, ep, p, lam, mu, delta))
     stress = np.array(stress)
@@ -113,7 +104,6 @@ def test_return_map_bounded_under_sustained_flow(sim_factory):
     for g in np.linspace(0, 0.5, 2001):  # 50 % shear strain, 250x the yield strain
         x = m.rest_x.copy()
         x[:, 0] += g * m.rest_x[:, 1]
-        fbar_of(sim, x, fbar)
         worst = max(worst, return_map(sim, x, fbar, theta, lam, mu, 0.5 * sy**2, rev, ep))
     assert worst <= 1e-9 and np.isfinite(ep).all()
     assert np.abs(ep).max() < 0.5  # bounded by the total bond strain
@@ -131,7 +121,6 @@ def test_return_map_is_symmetric_and_rotation_free(sim_factory):
     ep = np.zeros(len(m.bond_nbr))
     rev = reverse_of(m)
     x = m.rest_x + 1e-3 * rng.standard_normal(m.rest_x.shape)
-    fbar_of(sim, x, fbar)
     return_map(sim, x, fbar, theta, 1e5, 1e5, 1.0, rev, ep)
     src = np.repeat(np.arange(n), np.diff(m.bond_start))
     key = src * n + m.bond_nbr
@@ -141,7 +130,6 @@ def test_return_map_is_symmetric_and_rotation_free(sim_factory):
     rot = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
     ep[:] = 0.0
     x = m.rest_x @ rot.T
-    fbar_of(sim, x, fbar)
     return_map(sim, x, fbar, theta, 1e5, 1e5, 1.0, rev, ep)
     assert np.abs(ep).max() < 1e-12
 

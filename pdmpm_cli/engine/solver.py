@@ -86,6 +86,7 @@ class Solver:
         self.backend = backend if backend is not None else make_backend(plan.backend)
         self.kinds = [MATERIALS[b.kind] for b in model.bodies]
         self.fbar_bodies = [i for i, (k, b) in enumerate(zip(self.kinds, model.bodies)) if k.uses_fbar(b.params)]
+        self.step_fbar_bodies = [i for i in self.fbar_bodies if not self.kinds[i].computes_fbar]  # the fbar phase
         self.fracture_bodies = [i for i, b in enumerate(model.bodies) if b.fracture is not None]
         self.movers = [i for i, (k, b) in enumerate(zip(self.kinds, model.bodies))
                        if k.after_move is not None and k.moves(b.params)]  # bodies whose material acts after G2P
@@ -144,7 +145,7 @@ class Solver:
         """particle_force of every body: Fbar (eq. 4) where a material reads it, then each body's material."""
         if self.plan.fbar:
             with self.timed("fbar"):
-                self.fbar()
+                self.fbar(self.step_fbar_bodies)
         for hook in ("before_forces", "forces", "after_forces"):
             for i, kind in enumerate(self.kinds):
                 fn = getattr(kind, hook)
@@ -163,10 +164,10 @@ class Solver:
         for i, kind in enumerate(self.kinds):
             (kind.bond_forces or kind.forces)(self, i, dt)
 
-    def fbar(self):
-        """Eq. 4 for the bodies whose material uses Fbar."""
+    def fbar(self, bodies=None):
+        """Eq. 4 for the bodies whose material uses Fbar (or those of `bodies`)."""
         a, m = self.a, self.m
-        for i in self.fbar_bodies:
+        for i in self.fbar_bodies if bodies is None else bodies:
             b = self.model.bodies[i]
             self.backend.run(AVERAGED_DEFORMATION, b.start, b.end, a.particle_x, m.rest_x, a.bond_start, a.bond_nbr,
                              a.bond_wv, m.particle_Kinv, a.particle_Fbar, particle_chunks())

@@ -19,7 +19,8 @@ makes e_p identical on both stored directions of a bond, so forces stay pairwise
 
 A pair's force reads only its own e_p, so the map runs inside the force pass, each bond just before its force, on the
 eta and Ybar the force needs anyway; only the dilatations (every pair reads both ends') need a pass of their own
-before it. The CPU's pair pass maps each pair once, at its lower-index particle, and copies e_p to the reverse bond
+before it, which computes the body's Fbar from the same gather of each family (the step's fbar phase leaves a
+plastic body out). The CPU's pair pass maps each pair once, at its lower-index particle, and copies e_p to the reverse bond
 (`bond_reverse`: the slot of q -> p in q's family, found once at the start and checkpointed with e_p); the GPU's
 threads map each bond from both ends, each writing its own side.
 """
@@ -32,7 +33,7 @@ import numpy as np
 from numba import njit, prange
 from pydantic import Field as Doc, model_validator
 
-from pdmpm_cli.engine.bonds import bond_vector, chunk_width, influence
+from pdmpm_cli.engine.bonds import averaged_deformation_at, bond_vector, chunk_width, influence, times_kinv
 from pdmpm_cli.engine.fields import BOND, PARTICLE, Field
 from pdmpm_cli.engine.kernel import Kernel
 from pdmpm_cli.engine.materials import elastic
@@ -76,8 +77,7 @@ def params(section) -> elastic.Params:
 
 
 @njit(cache=True)
-def dilatation_at(p, delta, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_active, particle_theta,
-                  chunks):
+def dilatation_at(p, delta, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_active, particle_theta):
     """theta_p = 3 sum w |xi|^2 s V_q / sum w |xi|^2 V_q over intact bonds (e_iso of eq. 9) -> particle_theta[p]."""
     has_active = bond_active.shape[0] > 0
     num = 0.0
@@ -94,40 +94,67 @@ def dilatation_at(p, delta, particle_x, rest_x, particle_volume, bond_start, bon
     particle_theta[p] = 3.0 * num / den if den > 0.0 else 0.0
 
 
+@njit(cache=True)
+def fbar_dilatation_at(p, delta, mu, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_wv, bond_active,
+                       particle_Kinv, particle_Fbar, particle_theta, chunks):
+    """Fbar_p (eq. 4, where mu > 0) and theta_p: the GPU's form of `fbar_dilatation`."""
+    if mu > 0.0:
+        averaged_deformation_at(p, particle_x, rest_x, bond_start, bond_nbr, bond_wv, particle_Kinv, particle_Fbar,
+                                chunks)
+    dilatation_at(p, delta, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_active, particle_theta)
+
+
 @njit(parallel=True, cache=True, error_model="numpy")  # no fastmath: see parallel.py
-def bond_dilatation(start, end, delta, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_active,
-                    particle_theta, chunks):
-    """`dilatation_at` for particles start..end-1, the CPU's form: per particle, a loop gathers the intact bonds'
-    xi, eta and V_q into contiguous scratch rows, a loop without gathers or sums turns each into its two terms (the
-    square roots and divisions, which the compiler can vectorise), and a third sums them in bond order (to the
-    bit the sums of `dilatation_at`)."""
-    has_active = bond_active.shape[0] > 0
+def fbar_dilatation(start, end, delta, mu, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_wv,
+                    bond_active, particle_Kinv, particle_Fbar, particle_theta, chunks):
+    """Fbar_p (eq. 4, where mu > 0; bonds.averaged_deformation) and theta_p (`dilatation_at`) of particles
+    start..end-1 from one gather of each family, the CPU's form: a loop gathers xi, eta, w V_q, V_q and whether the
+    bond is intact into contiguous scratch rows; Fbar's sums run over the whole family in bond order, a loop without
+    gathers or sums turns each bond into its two dilatation terms (the square roots and divisions, which the
+    compiler can vectorise), and a last loop sums those of the intact bonds in bond order: to the bit the sums of
+    averaged_deformation and `dilatation_at`."""
+    has_active, has_mu = bond_active.shape[0] > 0, mu > 0.0
     n = end - start
     for t in prange(chunks):
         lo, hi = start + t * n // chunks, start + (t + 1) * n // chunks
-        s = np.empty((7, chunk_width(bond_start, lo, hi)))  # xi (3), eta (3), V_q; then the two terms in 0, 1
+        s = np.empty((9, chunk_width(bond_start, lo, hi)))  # xi (3), eta (3), w V_q, V_q, intact; terms in 0, 1
         for p in range(lo, hi):
             r0, r1, r2 = rest_x[p, 0], rest_x[p, 1], rest_x[p, 2]
             p0, p1, p2 = particle_x[p, 0], particle_x[p, 1], particle_x[p, 2]
-            m = 0
-            for b in range(bond_start[p], bond_start[p + 1]):
-                if has_active and bond_active[b] == 0:
-                    continue
-                q = bond_nbr[b]
-                s[0, m], s[1, m], s[2, m] = rest_x[q, 0] - r0, rest_x[q, 1] - r1, rest_x[q, 2] - r2
-                s[3, m], s[4, m], s[5, m] = particle_x[q, 0] - p0, particle_x[q, 1] - p1, particle_x[q, 2] - p2
-                s[6, m] = particle_volume[q]
-                m += 1
+            b0, m = bond_start[p], bond_start[p + 1] - bond_start[p]
+            for k in range(m):
+                q = bond_nbr[b0 + k]
+                s[0, k], s[1, k], s[2, k] = rest_x[q, 0] - r0, rest_x[q, 1] - r1, rest_x[q, 2] - r2
+                s[3, k], s[4, k], s[5, k] = particle_x[q, 0] - p0, particle_x[q, 1] - p1, particle_x[q, 2] - p2
+                s[6, k], s[7, k] = bond_wv[b0 + k], particle_volume[q]
+                s[8, k] = 0.0 if has_active and bond_active[b0 + k] == 0 else 1.0
+            if has_mu:
+                a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
+                for k in range(m):
+                    w = s[6, k]
+                    x0, x1, x2 = w * s[0, k], w * s[1, k], w * s[2, k]
+                    e0, e1, e2 = s[3, k], s[4, k], s[5, k]
+                    a00 += e0 * x0
+                    a01 += e0 * x1
+                    a02 += e0 * x2
+                    a10 += e1 * x0
+                    a11 += e1 * x1
+                    a12 += e1 * x2
+                    a20 += e2 * x0
+                    a21 += e2 * x1
+                    a22 += e2 * x2
+                times_kinv(p, a00, a01, a02, a10, a11, a12, a20, a21, a22, particle_Kinv, particle_Fbar)
             for k in range(m):
                 r = math.sqrt(s[0, k] * s[0, k] + s[1, k] * s[1, k] + s[2, k] * s[2, k])
                 l = math.sqrt(s[3, k] * s[3, k] + s[4, k] * s[4, k] + s[5, k] * s[5, k])
-                wv = influence(r, delta) * r * r * s[6, k]
+                wv = influence(r, delta) * r * r * s[7, k]
                 s[0, k], s[1, k] = wv * (l / r - 1.0), wv
             num = 0.0
             den = 0.0
             for k in range(m):
-                num += s[0, k]
-                den += s[1, k]
+                if s[8, k] != 0.0:
+                    num += s[0, k]
+                    den += s[1, k]
             particle_theta[p] = 3.0 * num / den if den > 0.0 else 0.0
 
 
@@ -306,7 +333,7 @@ def plastic_force_at(p, lam, mu, psi, particle_x, rest_x, particle_volume, bond_
     return fmax
 
 
-DILATATION = Kernel(dilatation_at, bond_dilatation)
+FBAR_DILATATION = Kernel(fbar_dilatation_at, fbar_dilatation)
 PLASTIC_FORCES = Kernel(plastic_force_at, plastic_forces_cpu, reduce="max")
 
 
@@ -322,10 +349,12 @@ def particle_plastic_strain(bond_start, bond_ep, out):
 
 
 def dilatation(solver, body: int, dt: float):
-    """Before the forces: every particle's dilatation (e_iso of eq. 9), which the return map of both ends reads."""
+    """Before the forces: the body's Fbar (eq. 4; the step's fbar phase leaves a plastic body out) and every
+    particle's dilatation (e_iso of eq. 9), which the return map of both ends of a bond reads, from one gather."""
     b, a, m = solver.model.bodies[body], solver.a, solver.m
-    solver.backend.run(DILATATION, b.start, b.end, b.horizon, a.particle_x, m.rest_x, m.particle_volume, a.bond_start,
-                       a.bond_nbr, a.bond_active, a.particle_theta, particle_chunks())
+    solver.backend.run(FBAR_DILATATION, b.start, b.end, b.horizon, b.params.mu, a.particle_x, m.rest_x,
+                       m.particle_volume, a.bond_start, a.bond_nbr, a.bond_wv, a.bond_active, m.particle_Kinv,
+                       a.particle_Fbar, a.particle_theta, particle_chunks())
 
 
 def bonds(solver, body: int, dt: float):
@@ -355,6 +384,7 @@ def plastic_strain(model, state) -> np.ndarray:
 KIND = MaterialKind(
     name="plastic", schema=Schema, params=params, forces=bonds, bond_forces=elastic.bonds, constants=elastic.constants,
     energy=elastic.energy, before_forces=dilatation, start=start, uses_fbar=lambda p: p.mu > 0,
+    computes_fbar=True,
     fields=elastic.KIND.fields + (
         Field("bond_ep", BOND, doc="plastic strain per bond (eq. 9) [-]"),
         Field("bond_reverse", BOND, dtype="i8", doc="slot of the reverse bond q -> p in q's family [-]"),
