@@ -440,6 +440,8 @@ def rebuild_families(particle_x, bond_start, bond_nbr, bond_arrays, ranges, leng
         pairs, d = pairs[inside] + start, d[inside]
         new_keys = np.concatenate([pairs[:, 0] * n + pairs[:, 1], pairs[:, 1] * n + pairs[:, 0]])
         length = np.concatenate([d, d])
+        by_key = np.argsort(new_keys)  # sorted needles: searchsorted walks old_keys forwards, the final sort is a merge
+        new_keys, length = new_keys[by_key], length[by_key]
         idx = np.minimum(np.searchsorted(old_keys, new_keys), max(len(old_keys) - 1, 0))
         survive = np.zeros(len(new_keys), dtype=bool)
         if len(old_keys):
