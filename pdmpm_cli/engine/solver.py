@@ -86,7 +86,7 @@ class Solver:
         self.backend = backend if backend is not None else make_backend(plan.backend)
         self.kinds = [MATERIALS[b.kind] for b in model.bodies]
         self.fbar_bodies = [i for i, (k, b) in enumerate(zip(self.kinds, model.bodies)) if k.uses_fbar(b.params)]
-        self.step_fbar_bodies = [i for i in self.fbar_bodies if not self.kinds[i].computes_fbar]  # the fbar phase
+        self.step_fbar_bodies = [i for i in self.fbar_bodies if not self.kinds[i].computes_fbar]  # the fbar phase's
         self.fracture_bodies = [i for i, b in enumerate(model.bodies) if b.fracture is not None]
         self.movers = [i for i, (k, b) in enumerate(zip(self.kinds, model.bodies))
                        if k.after_move is not None and k.moves(b.params)]  # bodies whose material acts after G2P

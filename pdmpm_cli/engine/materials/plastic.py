@@ -20,9 +20,9 @@ makes e_p identical on both stored directions of a bond, so forces stay pairwise
 A pair's force reads only its own e_p, so the map runs inside the force pass, each bond just before its force, on the
 eta and Ybar the force needs anyway; only the dilatations (every pair reads both ends') need a pass of their own
 before it, which computes the body's Fbar from the same gather of each family (the step's fbar phase leaves a
-plastic body out). The CPU's pair pass maps each pair once, at its lower-index particle, and copies e_p to the reverse bond
-(`bond_reverse`: the slot of q -> p in q's family, found once at the start and checkpointed with e_p); the GPU's
-threads map each bond from both ends, each writing its own side.
+plastic body out). The CPU's pair pass maps each pair once, at its lower-index particle, and copies e_p to the
+reverse bond (`bond_reverse`: the slot of q -> p in q's family, found once at the start and checkpointed with e_p);
+the GPU's threads map each bond from both ends, each writing its own side.
 """
 
 import math
