@@ -1,6 +1,7 @@
 """Fracture energy against resolution: a notched bar pulled apart slowly (pdmpm_cli/study/fracture.py).
 
-Usage: python bench/fracture_energy.py [--cells 0.04 0.03 0.02] [--energy 2.0] [--damage-resistance 1.0]
+Usage: python bench/fracture_energy.py [--cells 0.04 0.03 0.02] [--energy 2.0] [--damage-resistance K]
+    [--cracks auto|shared|separate] [--flip F]
 Prints one row per grid cell size: large pieces (over 5 % of the mass), time of first separation, the strain
 energy stored when the first bond broke (what an unstable crack releases as motion), the energy balance
 D = W - strain - kinetic against G_c A (A the ligament), split into what the bonds held when they were cut (and the
@@ -31,12 +32,14 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cells", type=float, nargs="+", default=[0.04, 0.03, 0.02])
     ap.add_argument("--energy", type=float, default=2.0, help="G_c [J/m^2]")
-    ap.add_argument("--damage-resistance", type=float, default=1.0)
+    ap.add_argument("--damage-resistance", type=float, default=None, help="default: the scene's (0 with an energy)")
+    ap.add_argument("--cracks", choices=("auto", "shared", "separate"), default="auto", help="contact.cracks")
+    ap.add_argument("--flip", type=float, default=0.0, help="simulation.flip")
     args = ap.parse_args()
     print("| " + " | ".join(COLUMNS) + " |")
     print("|" + "---|" * len(COLUMNS))
     for cell in args.cells:
-        r = pull(cell, args.energy, damage_resistance=args.damage_resistance)
+        r = pull(cell, args.energy, damage_resistance=args.damage_resistance, cracks=args.cracks, flip=args.flip)
         print("| " + " | ".join(row(r)) + " |", flush=True)
 
 

@@ -79,9 +79,10 @@ def fracture_params(frac, kind: str, params, horizon: float) -> FractureParams |
     if frac is None:
         return None
     if frac.energy is None:
-        return FractureParams(frac.threshold, frac.damage_resistance)
+        return FractureParams(frac.threshold, 1.0 if frac.damage_resistance is None else frac.damage_resistance)
     modulus = MATERIALS[kind].constants(params)["p_wave_modulus"]
-    return FractureParams(critical_stretch(frac.energy, modulus, horizon), frac.damage_resistance, frac.energy)
+    return FractureParams(critical_stretch(frac.energy, modulus, horizon),
+                          0.0 if frac.damage_resistance is None else frac.damage_resistance, frac.energy)
 
 
 def body_params(scene: Scene, disc: Discretization) -> tuple[BodyParams, ...]:
@@ -99,35 +100,68 @@ def body_params(scene: Scene, disc: Discretization) -> tuple[BodyParams, ...]:
     return tuple(out)
 
 
-def contact_friction(scene: Scene) -> np.ndarray:
-    """(bodies, bodies) Coulomb coefficients between bodies, or (0, 0) when all bodies share one grid field (one
-    body, or contact mode shared)."""
+def crack_bodies(scene: Scene) -> tuple[int, ...]:
+    """Bodies whose cracks and notches get a second grid field (contact.cracks, engine/crack.py): those with
+    `fracture` or `cutouts`. auto takes them where each body has its own field (or there is one body) on the CPU;
+    separate asked of bodies sharing one field, or on the GPU, is refused."""
+    out = tuple(i for i, b in enumerate(scene.bodies)
+                if b.fracture is not None or getattr(b.geometry, "cutouts", None))
+    shared = len(scene.bodies) > 1 and scene.contact.mode == "shared"
+    gpu = scene.simulation.backend != "cpu"
+    if scene.contact.cracks == "shared" or not out:
+        return ()
+    if scene.contact.cracks == "auto":
+        return () if shared or gpu else out
+    if shared:
+        raise SceneValueError("contact.cracks: separate needs a field per body (contact.mode: separate); with one "
+                              "shared field set contact.cracks: shared", ("contact", "cracks"))
+    if gpu:
+        raise SceneValueError("contact.cracks: separate runs on the CPU backend only; run with --backend cpu, or "
+                              "set contact.cracks: shared", ("contact", "cracks"))
+    return out
+
+
+def field_bodies(scene: Scene, cracks: tuple[int, ...]) -> list[int]:
+    """The body of each grid field: one per body, then the crack side of each crack body; [] when all bodies share
+    one field (one body without crack fields, or contact mode shared)."""
     n = len(scene.bodies)
-    if n < 2 or scene.contact.mode == "shared":
-        return np.zeros((0, 0))
+    if not cracks and (n < 2 or scene.contact.mode == "shared"):
+        return []
+    return list(range(n)) + list(cracks)
+
+
+def contact_friction(scene: Scene, cracks: tuple[int, ...] = ()) -> np.ndarray:
+    """(fields, fields) Coulomb coefficients between grid fields (`field_bodies`; the two sides of a crack take
+    contact.friction), or (0, 0) when all bodies share one field."""
+    fb = field_bodies(scene, cracks)
+    n = len(scene.bodies)
     out = np.full((n, n), scene.contact.friction)
     index = {b.name: i for i, b in enumerate(scene.bodies)}
     for pair in scene.contact.pairs:
         a, b = (index[name] for name in pair.bodies)
         out[a, b] = out[b, a] = pair.friction
-    return out
+    return out[np.ix_(fb, fb)]
 
 
-def contact_stiffness(scene: Scene, bodies) -> np.ndarray:
-    """(bodies, bodies) penalty coefficients stiffness x c^2 [m^2/s^2] (c the pair's larger P-wave speed), zero for
-    the projection (contact.model projection, or auto with a FLIP share); (0, 0) when the bodies share one field."""
-    n = len(scene.bodies)
-    if n < 2 or scene.contact.mode == "shared":
+def contact_stiffness(scene: Scene, bodies, cracks: tuple[int, ...] = ()) -> np.ndarray:
+    """(fields, fields) penalty coefficients stiffness x c^2 [m^2/s^2] (c the pair's larger P-wave speed), zero for
+    the projection (contact.model projection, or auto with a FLIP share), -1 between the two sides of a crack (the
+    projection, engine.contact); (0, 0) when the bodies share one field."""
+    fb = field_bodies(scene, cracks)
+    if not fb:
         return np.zeros((0, 0))
+    sides = np.equal.outer(fb, fb) & ~np.eye(len(fb), dtype=bool)
     model = scene.contact.model
     if model == "projection" or (model == "auto" and scene.simulation.flip > 0.0):
-        return np.zeros((n, n))
+        return np.where(sides, -1.0, 0.0)
     if scene.simulation.flip > 0.0:
         raise SceneValueError("the penalty contact runs with APIC only (simulation.flip 0): with a FLIP share two "
                               "colliding spheres gained energy (x1.2 at flip 0.95, x4 at 1); set simulation.flip: 0 "
                               "or contact.model: projection", ("contact", "model"))
-    c = np.array([MATERIALS[b.kind].constants(b.params)["wave_speed"] for b in bodies])
-    return scene.contact.stiffness * np.maximum.outer(c, c) ** 2
+    c = np.array([MATERIALS[b.kind].constants(b.params)["wave_speed"] for b in bodies])[fb]
+    # The faces of a crack lie at the rest spacing, where the penalty would already push them open: the two sides
+    # of one body meet by the projection (-1: with the normal across the crack, engine.contact).
+    return np.where(sides, -1.0, scene.contact.stiffness * np.maximum.outer(c, c) ** 2)
 
 
 def emitter(scene: Scene, disc: Discretization, bodies) -> Emitter | None:
@@ -169,6 +203,7 @@ def build_model(scene: Scene, disc: Discretization) -> Model:
     lo, hi = np.asarray(g.domain.min, dtype=np.float64), np.asarray(g.domain.max, dtype=np.float64)
     cells = np.ceil((hi - lo) / g.cell_size - 1e-9).astype(int)
     bodies = body_params(scene, disc)
+    cracks = crack_bodies(scene)
     return Model(
         rest_x=disc.rest_x, particle_volume=disc.volume, particle_mass=disc.mass, particle_body=disc.body,
         bond_start=disc.bond_start, bond_nbr=disc.bond_nbr, particle_Kinv=kinv,
@@ -180,6 +215,7 @@ def build_model(scene: Scene, disc: Discretization) -> Model:
         wind_drag=scene.wind.drag if scene.wind else 0.0,
         origin=lo, dx=g.cell_size, grid_shape=tuple(int(c) + 1 for c in cells),
         wall_boundary=BOUNDARY_CODES[g.boundary], wall_friction=g.friction,
-        contact_friction=contact_friction(scene), contact_stiffness=contact_stiffness(scene, bodies),
+        contact_friction=contact_friction(scene, cracks), contact_stiffness=contact_stiffness(scene, bodies, cracks),
+        crack_bodies=cracks, particle_cut=disc.cut,
         flip=scene.simulation.flip,
     )

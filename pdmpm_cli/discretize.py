@@ -125,6 +125,9 @@ class Discretization:
     collider_samples: dict = field(default_factory=dict)  # scene collider index -> DistanceSamples of a mesh collider
     collider_meshes: dict = field(default_factory=dict)  # scene collider index -> its SurfaceMesh, placed, at t = 0
     emitter_layer: np.ndarray | None = None  # (N, 3) one layer of the last body's emitter: its lattice in the nozzle
+    cut: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (n, 4) sum of X_q - X_p over the bonds a
+    # cutout removed [m], pointing from each particle into the notch, and their count (crack fields, engine.crack);
+    # (0, 4): no cutouts
 
     @property
     def n_particles(self) -> int:
@@ -527,7 +530,7 @@ def sample_bodies(scene: Scene, base_dir: Path) -> Discretization:
     rest_x = np.concatenate(xs)
     body_ids = np.concatenate([np.full(e - s, i, dtype=np.int32) for i, (s, e) in enumerate(ranges)])
     bond_start, bond_nbr = build_families(rest_x, ranges, horizon, pairs)
-    bond_start, bond_nbr = cut_bonds_through(scene, base_dir, rest_x, ranges, bond_start, bond_nbr)
+    bond_start, bond_nbr, cut = cut_bonds_through(scene, base_dir, rest_x, ranges, bond_start, bond_nbr)
     has_pins = any(m.any() for m in pinned)
     return Discretization(
         rest_x=rest_x,
@@ -546,12 +549,15 @@ def sample_bodies(scene: Scene, base_dir: Path) -> Discretization:
         pin_stop=np.concatenate(pin_t) if has_pins else np.zeros(0),
         meshes=embedded,
         notes=notes,
+        cut=cut,
     )
 
 
 def cut_bonds_through(scene: Scene, base_dir: Path, rest_x, ranges, bond_start, bond_nbr):
     """Remove bonds whose segment passes through a cutout (tested at 1/4, 1/2 and 3/4 of its length), so a
-    notch narrower than the horizon is still a real notch."""
+    notch narrower than the horizon is still a real notch. Also returns, per particle, the sum of X_q - X_p over its
+    removed bonds (the direction into the notch, for crack fields) and their count, or (0, 4) when nothing was
+    removed."""
     keep = np.ones(len(bond_nbr), dtype=bool)
     for body, (start, end) in zip(scene.bodies, ranges):
         cuts = [shape_region(c, base_dir) for c in getattr(body.geometry, "cutouts", [])]
@@ -565,5 +571,8 @@ def cut_bonds_through(scene: Scene, base_dir: Path, rest_x, ranges, bond_start, 
             for cut in cuts:
                 keep[b0:b1] &= ~cut.inside(mid)
     if keep.all():
-        return bond_start, bond_nbr
-    return drop_bonds(bond_start, bond_nbr, keep)
+        return bond_start, bond_nbr, np.zeros((0, 4))
+    p = np.repeat(np.arange(len(rest_x)), np.diff(bond_start))[~keep]
+    cut = np.zeros((len(rest_x), 4))
+    np.add.at(cut, p, np.hstack([rest_x[bond_nbr[~keep]] - rest_x[p], np.ones((len(p), 1))]))
+    return *drop_bonds(bond_start, bond_nbr, keep), cut

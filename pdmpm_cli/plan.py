@@ -36,6 +36,8 @@ def state_fields(model: Model, backend: str) -> tuple[F.Field, ...]:
     out = list(F.CORE + F.GRIDS)
     if len(model.contact_friction):  # a field per body replaces the one grid
         out = [f for f in out if f.name != "grid"] + list(F.CONTACT)
+    if model.crack_bodies:
+        out += F.CRACK_SIDES
     if any(k.uses_fbar(b.params) for k, b in zip(kinds, model.bodies)):
         out += F.FBAR
     for kind in dict.fromkeys(kinds):
@@ -52,8 +54,9 @@ def array_shapes(declared, model: Model, n_bonds: int, threads: int) -> dict:
     grid = {
         "grid": nodes + (q,),
         "grid_private": (threads,) + nodes + (q,),  # per-thread P2G grids keep the CPU race-free (GPU: atomics)
-        "grid_field": (len(model.bodies),) + nodes + (q,),
-        "grid_surface": (len(model.bodies),) + nodes + (SURFACE,),
+        "grid_field": (len(model.contact_friction),) + nodes + (q,),
+        "grid_surface": (len(model.contact_friction),) + nodes + (SURFACE,),
+        "grid_owner": (len(model.crack_bodies),) + nodes,
         "grid_surface_private": (threads,) + nodes + (SURFACE,),
         "particle_force_private": (threads, n, 3),  # per-thread pair-force arrays (CPU)
         "cell_bonds": (math.prod(c - 1 for c in nodes),), "cell_broken": (math.prod(c - 1 for c in nodes),),
@@ -74,13 +77,15 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
     bond_time_steps(disc.rest_x, disc.volume, disc.bond_start, disc.bond_nbr, disc.body, disc.body_horizon,
                     modulus, density, model.particle_coef, dt_p)
     bodies = []
-    for b, c in zip(model.bodies, consts):
+    for i, (b, c) in enumerate(zip(model.bodies, consts)):
         bodies.append(BodyPlan(
             name=b.name, model=b.kind, particles=b.end - b.start,
             bonds=int(disc.bond_start[b.end] - disc.bond_start[b.start]), spacing=b.spacing, horizon=b.horizon,
             effective=c, dt_bond=float(dt_p[b.start:b.end].min()) if b.end > b.start else math.inf,
             fracture_threshold=b.fracture.threshold if b.fracture else None,
-            fracture_energy=b.fracture.energy if b.fracture else None))
+            fracture_energy=b.fracture.energy if b.fracture else None,
+            damage_resistance=b.fracture.damage_resistance if b.fracture else None,
+            crack_fields=i in model.crack_bodies))
     wave = max(b.effective["wave_speed"] for b in bodies)
     dt_cfl = (CFL[sim.step] if sim.cfl is None else sim.cfl) * scene.grid.cell_size / wave
     # Grid-integrated particles move with B-spline grid velocities, which do not carry the particle-scale modes

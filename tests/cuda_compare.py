@@ -116,8 +116,9 @@ BUNDLED = {
     "wall_break": ("grid.cell_size=0.04", "bodies.0.geometry.spacing=0.04", "bodies.1.geometry.spacing=0.04",
                    "bodies.1.velocity=[24.0,0.0,0.0]", "bodies.0.fracture.threshold=0.0005",
                    "bodies.1.geometry.shape.center=[0.37,0.4,0.45]",  # touching the wall: contact from the start
-                   # a field per body, the projection: crack particles meet the other body's field
-                   "contact.mode=separate", "contact.model=projection"),
+                   # a field per body, the projection: crack particles meet the other body's field (the GPU runs
+                   # contact.cracks shared: off-grid crack particles)
+                   "contact.mode=separate", "contact.model=projection", "contact.cracks=shared"),
     "beams": ("grid.cell_size=0.075", *(f"bodies.{i}.geometry.spacing=0.075" for i in range(3)),
               *(f"bodies.{i}.geometry.layers=1" for i in range(3))),
     # the stream as a falling column: the emitter runs on the CPU only

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from pdmpm_cli.checkpoint import restore, snapshot
+from pdmpm_cli.engine.backends.cpu import UNSPLIT
 from pdmpm_cli.engine.materials.viscoelastic import volume_pressures
 from pdmpm_cli.engine.transfer import p2g_at
 from tests import fluid_cases as F
@@ -28,7 +29,7 @@ def test_pressure_term_is_the_stress_virial():
     def scatter(c):
         g = np.zeros((10, 10, 10, 4))
         p2g_at(0, x, v, c, mass, np.zeros((1, 3)), np.zeros(0, np.uint8), np.zeros(0, np.uint8), dt,
-               np.zeros(3), 1 / dx, g, np.empty(4), np.empty(4), np.empty(4))
+               np.zeros(3), 1 / dx, g, np.empty(4), np.empty(4), np.empty(4), *UNSPLIT, 0)
         return g
 
     before = scatter(grad.copy())

@@ -91,6 +91,10 @@ def print_plan(console: Console, plan):
                                                for b in plan.bodies]
         rows["fracture threshold [-]"] = ["-" if b.fracture_threshold is None else f"{b.fracture_threshold:.4g}"
                                           for b in plan.bodies]
+        rows["damage resistance k [-]"] = ["-" if b.damage_resistance is None else f"{b.damage_resistance:g}"
+                                           for b in plan.bodies]
+    if any(b.fracture_threshold is not None or b.crack_fields for b in plan.bodies):
+        rows["crack fields (contact.cracks)"] = ["separate" if b.crack_fields else "shared" for b in plan.bodies]
     for label, values in rows.items():
         bodies.add_row(escape(label), *values)
     console.print(bodies)

@@ -35,7 +35,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from pdmpm_cli.engine.transfer import stencil_on_grid, stencil_with_gradients
+from pdmpm_cli.engine.transfer import node_side, stencil_on_grid, stencil_with_gradients
 
 CONTACT_GAP = 1.25  # contact acts where the fields' mass centres at a node are closer than this along n [cells]
 PENALTY_GAP = 1.0  # penalty: the fields' mass centres at a node closer than this overlap [cells] (0.93 on the
@@ -55,11 +55,14 @@ def scatter_surface(g, i, j, k, g0, g1, g2, s0, s1, s2):
 
 
 @njit(cache=True, inline="always")
-def surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, g, wx, wy, wz, gx, gy, gz):
+def surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, g, wx, wy, wz, gx, gy, gz, owner, rest_x,
+               crack_n, piece, half_h, want):
     """Particle p's share of its field's mass gradient m_p grad N_I(x_p) [kg/m] and of the mass-weighted offset
-    m_p N_I (x_p - x_I) [kg m] -> g (the particles P2G scatters: crack particles and off-grid ones do not)."""
+    m_p N_I (x_p - x_I) [kg m] -> g (the particles P2G scatters: crack particles and off-grid ones do not; with
+    crack fields, at the nodes where p lies on side `want`, as transfer.p2g_at)."""
     if particle_crack.shape[0] > 0 and particle_crack[p] != 0:
         return
+    sided = owner.shape[0] > 0
     fx, fy, fz, bx, by, bz = stencil_with_gradients(particle_x, p, origin, inv_dx, wx, wy, wz, gx, gy, gz)
     if not stencil_on_grid(fx, fy, fz, g):
         return
@@ -70,6 +73,8 @@ def surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, g, 
         for j in range(4):
             d1 = (fy - by - j) * dx
             for k in range(4):
+                if sided and node_side(p, owner[bx + i, by + j, bz + k], rest_x, crack_n, piece, half_h) != want:
+                    continue
                 d2 = (fz - bz - k) * dx
                 w = m * wx[i] * wy[j] * wz[k]
                 scatter_surface(g, bx + i, by + j, bz + k, m * inv_dx * gx[i] * wy[j] * wz[k],
@@ -103,7 +108,8 @@ def stencil_off_box(particle_x, p, origin, inv_dx, box):
 
 
 @njit(parallel=True, cache=True)
-def surfaces(particle_x, particle_mass, particle_crack, origin, inv_dx, box, private, out):
+def surfaces(particle_x, particle_mass, particle_crack, origin, inv_dx, box, private, out, owner, rest_x, crack_n,
+             piece, half_h, want):
     """`surface_at` for every particle whose stencil meets the node box (`overlap_box`) -> out on the box: thread t
     scatters a fixed particle range into private[t], then the private grids are summed in thread order (as
     transfer.p2g, so runs are reproducible). A particle's nodes outside the box take stale sums in private[t], which
@@ -122,7 +128,8 @@ def surfaces(particle_x, particle_mass, particle_crack, origin, inv_dx, box, pri
         for p in range(t * n // nt, (t + 1) * n // nt):
             if stencil_off_box(particle_x, p, origin, inv_dx, box):
                 continue
-            surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, g, wx, wy, wz, gx, gy, gz)
+            surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, g, wx, wy, wz, gx, gy, gz, owner,
+                       rest_x, crack_n, piece, half_h, want)
     for i in prange(box[0], box[1]):
         for j in range(box[2], box[3]):
             for k in range(box[4], box[5]):
@@ -136,7 +143,8 @@ def surfaces(particle_x, particle_mass, particle_crack, origin, inv_dx, box, pri
 @njit(cache=True, inline="always")
 def contact_node_at(i, j, k, grid_field, grid_surface, friction, stiffness, dx, dt):
     """Node (i, j, k), after every field's grid update. Projection (stiffness 0 for the pair with the heaviest other
-    field): each field that has mass here, approaches the others along its contact normal and meets them (position
+    field; -1: the two sides of a crack, engine/crack.py): each field that has mass here, approaches the others
+    along its contact normal and meets them (position
     check) loses its normal velocity relative to the centre of mass, and Coulomb friction (coefficient of that
     pair) acts on the tangential part: it sticks (takes the centre-of-mass velocity) while the tangential slip is
     at most mu times the normal one. Penalty (stiffness > 0): a field whose mass centre is closer to the others'
@@ -165,13 +173,22 @@ def contact_node_at(i, j, k, grid_field, grid_surface, friction, stiffness, dx, 
         m = grid_field[f, i, j, k, 0]
         if m <= 0.0:
             continue
+        heaviest, mh = f, 0.0
+        for o in range(nf):
+            if o != f and grid_field[o, i, j, k, 0] > mh:
+                heaviest, mh = o, grid_field[o, i, j, k, 0]
+        kp = stiffness[f, heaviest] if stiffness.shape[0] > 0 else 0.0
         # normal: the outward mass gradient of whichever side has the larger one, this field's or the others'
         # (pointing into this body); at a body's edge or corner its own gradient tilts, a flat face's does not.
-        # A tie goes to field 0's, so two fields always get opposite normals.
+        # A tie goes to field 0's, so two fields always get opposite normals. The two sides of a crack (kp < 0)
+        # take the difference: near a free surface both gradients point into the body, and only the difference
+        # is across the crack.
         a0, a1, a2 = grid_surface[f, i, j, k, 0], grid_surface[f, i, j, k, 1], grid_surface[f, i, j, k, 2]
         o0, o1, o2 = g0 - a0, g1 - a1, g2 - a2
         aa, oo = a0 * a0 + a1 * a1 + a2 * a2, o0 * o0 + o1 * o1 + o2 * o2
-        if aa > oo or (aa == oo and f == 0):
+        if kp < 0.0:
+            n0, n1, n2 = a0 - o0, a1 - o1, a2 - o2
+        elif aa > oo or (aa == oo and f == 0):
             n0, n1, n2 = a0, a1, a2
         else:
             n0, n1, n2 = -o0, -o1, -o2
@@ -190,14 +207,9 @@ def contact_node_at(i, j, k, grid_field, grid_surface, friction, stiffness, dx, 
         e0 = (s0 - grid_surface[f, i, j, k, 3]) / mo - grid_surface[f, i, j, k, 3] / m
         e1 = (s1 - grid_surface[f, i, j, k, 4]) / mo - grid_surface[f, i, j, k, 4] / m
         e2 = (s2 - grid_surface[f, i, j, k, 5]) / mo - grid_surface[f, i, j, k, 5] / m
-        heaviest, mh = f, 0.0
-        for o in range(nf):
-            if o != f and grid_field[o, i, j, k, 0] > mh:
-                heaviest, mh = o, grid_field[o, i, j, k, 0]
         mu = friction[f, heaviest]
         t0, t1, t2 = d0 - dn * n0, d1 - dn * n1, d2 - dn * n2
         tt = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
-        kp = stiffness[f, heaviest] if stiffness.shape[0] > 0 else 0.0
         if kp > 0.0:
             # penalty: the mass centres closer than on the interface of touching half spaces -> an elastic push
             # along -n, F = kp m_red overlap / dx^2 (equal and opposite for two fields: their e and n are), whether

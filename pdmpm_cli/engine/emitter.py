@@ -79,17 +79,19 @@ def grown(model: Model, layers: int) -> Model:
 
     bodies = list(model.bodies)
     bodies[em.body] = replace(bodies[em.body], end=bodies[em.body].end + k)
-    pins = {}
+    extra = {}
     if len(model.pin_mask):
-        pins = {"pin_mask": more(model.pin_mask), "pin_velocity": more(model.pin_velocity),
-                "pin_stop": more(model.pin_stop, np.inf)}
+        extra = {"pin_mask": more(model.pin_mask), "pin_velocity": more(model.pin_velocity),
+                 "pin_stop": more(model.pin_stop, np.inf)}
+    if len(model.particle_cut):
+        extra["particle_cut"] = more(model.particle_cut)
     return replace(
         model, rest_x=np.concatenate([model.rest_x, *(em.points(k0 + j) for j in range(layers))]),
         particle_volume=more(model.particle_volume, em.volume), particle_mass=more(model.particle_mass, em.mass),
         particle_body=more(model.particle_body, em.body),
         bond_start=np.concatenate([model.bond_start, np.full(k, model.bond_start[n], dtype=model.bond_start.dtype)]),
         particle_Kinv=more(model.particle_Kinv), particle_coef=more(model.particle_coef),
-        particle_omega=more(model.particle_omega), bodies=tuple(bodies), **pins)
+        particle_omega=more(model.particle_omega), bodies=tuple(bodies), **extra)
 
 
 def grow_state(state, first: int, k: int) -> None:

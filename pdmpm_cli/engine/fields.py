@@ -49,6 +49,20 @@ CONTACT = (
           doc="per body: mass gradient [kg/m] and mass-weighted offset of its particles from the node [kg m]"),
     Field("grid_surface_private", GRID, transient=True, doc="per-thread scatter targets of grid_surface (CPU)"),
 )
+# Crack fields (engine/crack.py, contact.cracks: separate): a body's cracks and notches split its grid field in two.
+CRACK_SIDES = (
+    Field("particle_crack_n", PARTICLE, (3,), transient=True,
+          doc="unit direction from the particle into its crack or notch, in the reference frame [-]; 0: none "
+              "(recomputed when bonds break and when a State is bound)"),
+    Field("particle_crack_s", PARTICLE, transient=True, doc="length of the summed X_q - X_p of its broken and cut "
+          "bonds [m]: the node's owner is the particle with the largest"),
+    Field("particle_dust", PARTICLE, dtype="u1", transient=True,
+          doc="1: every bond broken, integrated off the grid as the crack particles of other bodies are"),
+    Field("particle_piece", PARTICLE, dtype="i8", transient=True,
+          doc="the piece of its body the particle belongs to (connected over intact bonds)"),
+    Field("grid_owner", GRID, dtype="i8", fill=-1, transient=True,
+          doc="per crack body: the particle whose crack plane splits the node's field; -1: the node is not split"),
+)
 # Reference bond factors, computed once: the Fbar pass and the pair pass read them.
 BOND_FACTORS = (
     Field("bond_wv", BOND, doc="w(|xi|) V_q, eq. 4's weight times the neighbour's volume [m^3]"),

@@ -57,10 +57,13 @@ class Model:
     grid_shape: tuple[int, int, int]  # nodes per axis
     wall_boundary: int  # colliders.STICKY, SLIP or SEPARATE
     wall_friction: float
-    contact_friction: np.ndarray  # (bodies, bodies) Coulomb coefficients of contact between bodies [-]; (0, 0):
-    # the bodies share one grid field (one body, or contact mode shared)
-    contact_stiffness: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))  # (bodies, bodies) penalty
-    # coefficients [m^2/s^2]; 0 for a pair: the projection (engine.contact)
+    contact_friction: np.ndarray  # (fields, fields) Coulomb coefficients of contact between grid fields [-]: one
+    # field per body, then the crack side of each of crack_bodies; (0, 0): the bodies share one grid field
+    contact_stiffness: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))  # (fields, fields) penalty
+    # coefficients [m^2/s^2]; 0 for a pair: the projection, -1 the projection between a crack's sides (engine.contact)
+    crack_bodies: tuple[int, ...] = ()  # bodies whose cracks and notches split their field in two (engine.crack)
+    particle_cut: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (n, 4) sum of X_q - X_p over the
+    # bonds cutouts removed [m] and their count; (0, 4) without cutouts
     emitter: Any = None  # engine.emitter.Emitter of the last body, or None
     flip: float = 0.0  # FLIP share of the G2P update [-]; 0: APIC alone, > 0: FLIP grid and MUSL (transfer.advect_at)
 

@@ -18,6 +18,8 @@ class BodyPlan:
     dt_bond: float  # bond bound, before the safety factor [s]
     fracture_threshold: float | None = None  # eq. 21 threshold the body breaks at (given or from its energy) [-]
     fracture_energy: float | None = None  # fracture energy G_c it came from [J/m^2]
+    damage_resistance: float | None = None  # weight k of p_inactive in eq. 21 [-]
+    crack_fields: bool = False  # its cracks and notches split its grid field in two (engine/crack.py)
 
 
 @dataclass(frozen=True)

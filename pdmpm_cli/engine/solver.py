@@ -16,8 +16,9 @@ import numpy as np
 
 from pdmpm_cli.engine.bonds import AVERAGED_DEFORMATION, averaged_deformation, bond_reference_terms
 from pdmpm_cli.engine.colliders import header_rows
+from pdmpm_cli.engine.crack import PIECE_MIN, crack_normals
 from pdmpm_cli.engine.emitter import emit
-from pdmpm_cli.engine.fracture import CRITERION, damage, fracture_update
+from pdmpm_cli.engine.fracture import CRITERION, damage, fracture_update, pieces
 from pdmpm_cli.engine.materials import MATERIALS, declared_fields
 from pdmpm_cli.engine.model import Model
 from pdmpm_cli.engine.parallel import particle_chunks
@@ -207,10 +208,41 @@ class Solver:
                                        state.particle_lmax, state.particle_bmax)
             if cut:
                 damage(state.bond_start, state.bond_active, state.particle_damage, state.particle_crack)
-                self.crack_index = np.flatnonzero(state.particle_crack).astype(np.int64)
+                self.crack_index = self.off_grid(state)
+                self.crack_sides(state)
         if cut:
             state.bonds_cut += cut
             be.crack_particles_changed(self, state)
+
+    def off_grid(self, state: State) -> np.ndarray:
+        """The crack particles that leave the grid for their own integrator (section 6), in order: all of them but
+        those of crack-field bodies that still hold a bond, which stay on the grid on their side's field
+        (engine/crack.py); dust, with every bond broken, has no side and flies on its own."""
+        crack = state.particle_crack.astype(bool)
+        for i in self.model.crack_bodies:
+            b = self.model.bodies[i]
+            crack[b.start:b.end] &= state.particle_damage[b.start:b.end] >= 1.0
+            state.particle_dust[b.start:b.end] = crack[b.start:b.end]
+        return np.flatnonzero(crack).astype(np.int64)
+
+    def crack_sides(self, state: State):
+        """Each crack body's pieces and crack directions from its broken and cut bonds (engine/crack.py), on the host
+        State. Particles of pieces under PIECE_MIN of the body split no node (debris would put both large pieces on
+        one side)."""
+        m = self.model
+        if not m.crack_bodies:
+            return
+        fractured = state.has("bond_active")  # else a body with cutouts alone: every bond intact
+        active = state.bond_active if fractured else np.zeros(0, dtype=np.uint8)
+        intact = active == 1 if fractured else np.ones(len(state.bond_nbr), dtype=bool)
+        for i in m.crack_bodies:
+            b = m.bodies[i]
+            crack_normals(b.start, b.end, m.rest_x, state.bond_start, state.bond_nbr, active, m.particle_cut,
+                          state.particle_crack_n, state.particle_crack_s)
+            label = pieces(state.bond_start, state.bond_nbr, intact, b.start, b.end)
+            state.particle_piece[b.start:b.end] = label
+            size = np.bincount(label)
+            state.particle_crack_s[b.start:b.end][size[label] < PIECE_MIN * (b.end - b.start)] = 0.0
 
     @contextmanager
     def timed(self, name: str):
@@ -272,8 +304,8 @@ class Solver:
         """Step this State from now on (after start, or after a checkpoint was restored into it): the backend
         takes its arrays (the CUDA backend uploads them)."""
         self.state = state
-        self.crack_index = (np.flatnonzero(state.particle_crack).astype(np.int64) if state.has("particle_crack")
-                            else np.zeros(0, np.int64))
+        self.crack_index = self.off_grid(state) if state.has("particle_crack") else np.zeros(0, np.int64)
+        self.crack_sides(state)
         self.backend.start(self, state)
 
     def sync(self, state: State) -> State:

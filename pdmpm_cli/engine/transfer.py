@@ -57,6 +57,22 @@ def stencil_with_gradients(particle_x, p, origin, inv_dx, wx, wy, wz, gx, gy, gz
 
 
 @njit(cache=True, inline="always")
+def node_side(p, o, rest_x, crack_n, piece, half_h):
+    """Field of particle p at a node that particle o's crack splits (engine/crack.py: o = -1 not split; o <= -2 the
+    node sees two pieces and particle -o - 2 owns it): 1 in another piece than the owner's, or in the same one beyond
+    its crack plane where the node sees one piece; else 0."""
+    if o == -1:
+        return 0
+    if o <= -2:
+        return 0 if piece[p] == piece[-o - 2] else 1
+    if piece[p] != piece[o]:
+        return 1
+    d = ((rest_x[p, 0] - rest_x[o, 0]) * crack_n[o, 0] + (rest_x[p, 1] - rest_x[o, 1]) * crack_n[o, 1]
+         + (rest_x[p, 2] - rest_x[o, 2]) * crack_n[o, 2])
+    return 1 if d > half_h else 0
+
+
+@njit(cache=True, inline="always")
 def scatter_node(g, i, j, k, m, p0, p1, p2):
     """g[i, j, k] += (m, p): on the CPU into the thread's private grid; the CUDA backend swaps in atomic adds."""
     g[i, j, k, 0] += m
@@ -92,16 +108,19 @@ def position_bounds(particle_x):
 
 @njit(cache=True, inline="always")
 def p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt, origin,
-           inv_dx, g, wx, wy, wz):
+           inv_dx, g, wx, wy, wz, owner, rest_x, crack_n, piece, half_h, want):
     """P2G of particle p: mass, APIC momentum and dt * bond force (eq. 7: f_I = sum_p N_I(x_p) f_p) -> g.
     Returns 1 if its stencil is off the grid (it then scatters nothing), else 0. On a FLIP grid (FLIP_CHANNELS)
     the impulse goes to its own channels, so that the grid update can keep the velocity before it, v_I^n.
 
     Crack-surface particles (particle_crack = 1; the array is empty without fracture) stay off the grid:
     they have their own integrator (section 6). Pinned particles bring their prescribed momentum but not their
-    bond force: that force is the grip's reaction, and scattering it would pull their free neighbours."""
+    bond force: that force is the grip's reaction, and scattering it would pull their free neighbours.
+
+    With crack fields (owner not empty, engine/crack.py) only the nodes where p lies on side `want` get its share."""
     if particle_crack.shape[0] > 0 and particle_crack[p] != 0:
         return 0
+    sided = owner.shape[0] > 0
     fx, fy, fz, bx, by, bz = stencil(particle_x, p, origin, inv_dx, wx, wy, wz)
     if not stencil_on_grid(fx, fy, fz, g):
         return 1
@@ -126,6 +145,8 @@ def p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force,
             r0, r1, r2 = q0 + c01 * d1, q1 + c11 * d1, q2 + c21 * d1
             wij = wx[i] * wy[j]
             for k in range(4):
+                if sided and node_side(p, owner[bx + i, by + j, bz + k], rest_x, crack_n, piece, half_h) != want:
+                    continue
                 d2 = (bz + k - fz) * dx
                 w = wij * wz[k]
                 scatter_node(g, bx + i, by + j, bz + k, w * m, w * (r0 + c02 * d2), w * (r1 + c12 * d2),
@@ -136,6 +157,8 @@ def p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force,
             for j in range(4):
                 wij = wx[i] * wy[j]
                 for k in range(4):
+                    if sided and node_side(p, owner[bx + i, by + j, bz + k], rest_x, crack_n, piece, half_h) != want:
+                        continue
                     w = wij * wz[k]
                     scatter_impulse(g, bx + i, by + j, bz + k, w * f0, w * f1, w * f2)
     return 0
@@ -143,10 +166,10 @@ def p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force,
 
 @njit(parallel=True, cache=True)
 def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt, origin,
-        inv_dx, box, grid_private, grid):
+        inv_dx, box, grid_private, grid, owner, rest_x, crack_n, piece, half_h, want):
     """`p2g_at` for every particle -> grid: thread t scatters a fixed particle range into grid_private[t] (cleared
     on the node box), then the private grids are summed in thread order. Returns the number of particles off the
-    grid."""
+    grid. With crack fields, `grid` is side `want` of the body's field (engine/crack.py)."""
     nt = grid_private.shape[0]
     n = particle_x.shape[0]
     outside = 0
@@ -162,7 +185,7 @@ def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, parti
         wz = np.empty(4)
         for p in range(t * n // nt, (t + 1) * n // nt):
             outside += p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack,
-                              pin_mask, dt, origin, inv_dx, g, wx, wy, wz)
+                              pin_mask, dt, origin, inv_dx, g, wx, wy, wz, owner, rest_x, crack_n, piece, half_h, want)
     for i in prange(box[0], box[1]):
         for j in range(box[2], box[3]):
             for k in range(box[4], box[5]):
@@ -228,9 +251,11 @@ def pin_share(stop, t_new, dt):
 
 
 @njit(cache=True, inline="always")
-def affine_sums(grid, c, bx, by, bz, fx, fy, fz, dx, wx, wy, wz):
+def affine_sums(grid, grid1, c, bx, by, bz, fx, fy, fz, dx, wx, wy, wz, p, owner, rest_x, crack_n, piece, half_h):
     """sum_i w_i u_i and sum_i w_i u_i (x_i - x_p)^T over a particle's 64 nodes, u the grid's channels c..c+2:
-    the velocity and the affine moments B_p of APIC's G2P (step 5)."""
+    the velocity and the affine moments B_p of APIC's G2P (step 5). With crack fields (owner not empty) u is read
+    from grid1 at the nodes where particle p lies beyond the crack plane (engine/crack.py)."""
+    sided = owner.shape[0] > 0
     # The sums over the 64 nodes of w u and w u (x_i - x_p) factor axis by axis (w = wx wy wz, and each component
     # of x_i - x_p depends on one axis): sum over k first, then j, then i.
     v0 = v1 = v2 = 0.0
@@ -247,9 +272,12 @@ def affine_sums(grid, c, bx, by, bz, fx, fy, fz, dx, wx, wy, wz):
             for k in range(4):
                 d2 = (bz + k - fz) * dx
                 w = wz[k]
-                u0 = w * grid[bx + i, by + j, bz + k, c]
-                u1 = w * grid[bx + i, by + j, bz + k, c + 1]
-                u2 = w * grid[bx + i, by + j, bz + k, c + 2]
+                src = grid
+                if sided and node_side(p, owner[bx + i, by + j, bz + k], rest_x, crack_n, piece, half_h) == 1:
+                    src = grid1
+                u0 = w * src[bx + i, by + j, bz + k, c]
+                u1 = w * src[bx + i, by + j, bz + k, c + 1]
+                u2 = w * src[bx + i, by + j, bz + k, c + 2]
                 k0 += u0
                 k1 += u1
                 k2 += u2
@@ -284,26 +312,29 @@ def affine_sums(grid, c, bx, by, bz, fx, fy, fz, dx, wx, wy, wz):
 
 @njit(cache=True, inline="always")
 def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip, particle_crack,
-           particle_x, particle_v, particle_C, wx, wy, wz, v, nrm):
+           particle_x, particle_v, particle_C, wx, wy, wz, v, nrm, grid1, owner, rest_x, crack_n, piece, half_h):
     """G2P of particle p: velocity and APIC affine matrix (step 5), pins, particle collisions (step 6), advection.
     Returns its speed, -1 when it is not finite, 0 for a crack-surface particle (left to its own integrator).
 
     On a FLIP grid (FLIP_CHANNELS) the new velocity and affine matrix are the grid's plus the share `flip` of what
     the particle carried and the grid did not, (v_p, C_p) - G2P(v_I^n) (Fei et al. 2021, eq. 9, applied to the
     affine matrix too: APIC's transfers are those of PIC for the pair (v, C) under the mass m_p diag(1, D_p)), and
-    the particle does not move here: `advect_at` moves it with the re-mapped velocity (MUSL)."""
+    the particle does not move here: `advect_at` moves it with the re-mapped velocity (MUSL). With crack fields
+    (owner not empty) grid and grid1 are the two sides of the body's field (engine/crack.py)."""
     if particle_crack.shape[0] > 0 and particle_crack[p] != 0:
         return 0.0
     dx = 1.0 / inv_dx
     scale = 3.0 * inv_dx * inv_dx  # D_p^-1 for cubic B-splines (Jiang et al. 2015)
     fx, fy, fz, bx, by, bz = stencil(particle_x, p, origin, inv_dx, wx, wy, wz)
-    v0, v1, v2, b00, b01, b02, b10, b11, b12, b20, b21, b22 = affine_sums(grid, 1, bx, by, bz, fx, fy, fz, dx,
-                                                                         wx, wy, wz)
+    v0, v1, v2, b00, b01, b02, b10, b11, b12, b20, b21, b22 = affine_sums(grid, grid1, 1, bx, by, bz, fx, fy, fz,
+                                                                         dx, wx, wy, wz, p, owner, rest_x, crack_n,
+                                                                         piece, half_h)
     pinned = pin_mask.shape[0] > 0 and pin_mask[p] != 0
     remapped = grid.shape[3] > CHANNELS
     if remapped and not pinned:
-        o0, o1, o2, a00, a01, a02, a10, a11, a12, a20, a21, a22 = affine_sums(grid, 4, bx, by, bz, fx, fy, fz, dx,
-                                                                             wx, wy, wz)
+        o0, o1, o2, a00, a01, a02, a10, a11, a12, a20, a21, a22 = affine_sums(grid, grid1, 4, bx, by, bz, fx, fy,
+                                                                             fz, dx, wx, wy, wz, p, owner, rest_x,
+                                                                             crack_n, piece, half_h)
         v0 += flip * (particle_v[p, 0] - o0)
         v1 += flip * (particle_v[p, 1] - o1)
         v2 += flip * (particle_v[p, 2] - o2)
@@ -341,7 +372,7 @@ def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity
 
 @njit(parallel=True, cache=True)
 def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip, particle_crack,
-        particle_x, particle_v, particle_C, chunks):
+        particle_x, particle_v, particle_C, chunks, grid1, owner, rest_x, crack_n, piece, half_h):
     """`g2p_at` for every particle, in `chunks` static chunks, each with its own scratch. Returns (max particle
     speed, number of non-finite particles)."""
     n = particle_x.shape[0]
@@ -355,7 +386,8 @@ def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_
         nrm = np.empty(3)
         for p in range(t * n // chunks, (t + 1) * n // chunks):
             s = g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip,
-                       particle_crack, particle_x, particle_v, particle_C, wx, wy, wz, v, nrm)
+                       particle_crack, particle_x, particle_v, particle_C, wx, wy, wz, v, nrm, grid1, owner, rest_x,
+                       crack_n, piece, half_h)
             if s < 0.0:
                 chunk_bad[t] += 1
             else:
@@ -365,13 +397,15 @@ def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_
 
 @njit(cache=True, inline="always")
 def advect_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack, particle_x, particle_v, wx, wy,
-              wz, nrm):
+              wz, nrm, grid1, owner, rest_x, crack_n, piece, half_h):
     """MUSL's position update of particle p (Sulsky et al. 1995), after G2P on a FLIP grid: x_p += dt sum_I w_Ip v_I
     with v_I the particles' new velocities mapped back to the grid (P2G with no force, then walls, colliders and
     contact), at the positions G2P read. With frozen weights the FLIP update and this one conserve the energy
     1/2 m_p (|v_p|^2 + D_p C_p : C_p) + W (Bardenhagen 2002); moving the particles with the grid velocity of the
     step (as g2p_at does for APIC) makes positions and velocities disagree by dt^2 per step, which damps elastic
-    motion at any step size. Pinned particles travel their prescribed velocity. Returns the speed as g2p_at."""
+    motion at any step size. Pinned particles travel their prescribed velocity. Returns the speed as g2p_at. Crack
+    fields as in g2p_at."""
+    sided = owner.shape[0] > 0
     if particle_crack.shape[0] > 0 and particle_crack[p] != 0:
         return 0.0
     pinned = pin_mask.shape[0] > 0 and pin_mask[p] != 0
@@ -385,9 +419,12 @@ def advect_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_
                 wij = wx[i] * wy[j]
                 for k in range(4):
                     w = wij * wz[k]
-                    u0 += w * grid[bx + i, by + j, bz + k, 1]
-                    u1 += w * grid[bx + i, by + j, bz + k, 2]
-                    u2 += w * grid[bx + i, by + j, bz + k, 3]
+                    src = grid
+                    if sided and node_side(p, owner[bx + i, by + j, bz + k], rest_x, crack_n, piece, half_h) == 1:
+                        src = grid1
+                    u0 += w * src[bx + i, by + j, bz + k, 1]
+                    u1 += w * src[bx + i, by + j, bz + k, 2]
+                    u2 += w * src[bx + i, by + j, bz + k, 3]
     particle_x[p, 0] += dt * u0
     particle_x[p, 1] += dt * u1
     particle_x[p, 2] += dt * u2
@@ -397,7 +434,8 @@ def advect_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_
 
 
 @njit(parallel=True, cache=True)
-def advect(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack, particle_x, particle_v, chunks):
+def advect(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack, particle_x, particle_v, chunks, grid1,
+           owner, rest_x, crack_n, piece, half_h):
     """`advect_at` for every particle, in `chunks` static chunks. Returns (max particle speed, number of non-finite
     particles)."""
     n = particle_x.shape[0]
@@ -410,7 +448,7 @@ def advect(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack,
         nrm = np.empty(3)
         for p in range(t * n // chunks, (t + 1) * n // chunks):
             s = advect_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack, particle_x,
-                          particle_v, wx, wy, wz, nrm)
+                          particle_v, wx, wy, wz, nrm, grid1, owner, rest_x, crack_n, piece, half_h)
             if s < 0.0:
                 chunk_bad[t] += 1
             else:

@@ -223,11 +223,12 @@ class Fracture(Strict):
         "[J/m^2]. The threshold becomes s0 = sqrt(4 G_c / (3 M delta)) with M the P-wave modulus lam + 2 mu and "
         "delta the horizon: the energy of every bond crossing a unit area at s0 (docs/method.md, 'Fracture "
         "energy'); `pdmpm validate --explain` prints it.")
-    damage_resistance: float = Field(
-        1.0, ge=0, description="Weight k of p_inactive in eq. 21, l = (stretch - e_p) / (1 + k p_inactive): 1 is the "
-        "paper (a cell that already holds broken bonds resists further breaking, so a slowly pulled bar breaks "
-        "cleanly); 0 lets a started crack cut through (a wall hit hard breaks into pieces instead of stalling in "
-        "bands of partial damage) [-].")
+    damage_resistance: float | None = Field(
+        None, ge=0, description="Weight k of p_inactive in eq. 21, l = (stretch - e_p) / (1 + k p_inactive): 1 is the "
+        "paper (a cell that already holds broken bonds resists further breaking); 0 lets a started crack cut through "
+        "(a wall hit hard breaks into pieces instead of stalling in bands of partial damage). Default: 1 with a "
+        "`threshold`, 0 with an `energy` (p_inactive counts per grid cell, so it would change a crack's cost with "
+        "the resolution: docs/method.md, 'Fracture energy') [-].")
 
     @model_validator(mode="after")
     def _one_criterion(self):
@@ -515,6 +516,14 @@ class Contact(Strict):
         "approach, the approaching one loses its normal velocity relative to their centre of mass (Bardenhagen et "
         "al. 2000; an inelastic impact of the nodes' masses: the same spheres keep 44 %). auto (default): penalty "
         "with simulation.flip 0, projection with a FLIP share.")
+    cracks: Literal["auto", "separate", "shared"] = Field(
+        "auto", description="separate: at every node near a crack or notch (`fracture`, `cutouts`), the material on "
+        "its two sides moves on two grid fields, with contact between them (damage-field partitioning after Homel & "
+        "Herbold 2017, the sides told apart by the broken and cut bonds and, once a body has come apart, by piece), "
+        "so no force crosses an open crack and the crack particles stay on the grid; CPU backend. shared: the paper's "
+        "one field per body, with crack particles integrated off the grid (section 6): the grid couples material up "
+        "to two cells across a gap and bridges a notch narrower than that. auto (default): separate where it "
+        "applies (a field per body or a single body, on the CPU), else shared.")
     stiffness: float = Field(2.0, gt=0, description="penalty: the contact stiffness at a node, in units of "
                              "c^2 m_red / dx^2 (c the pair's larger P-wave speed, m_red the reduced mass of the two "
                              "fields at the node); 4 makes the interface about as stiff as one cell of the material "

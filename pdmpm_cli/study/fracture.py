@@ -43,7 +43,7 @@ class Bar:
 
 
 def bar_scene(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.6, fps: float = 200.0,
-              sampling: str = "relaxed") -> dict:
+              sampling: str = "relaxed", cracks: str = "auto") -> dict:
     """The pulled bar at grid cell `cell` (particle spacing cell / 2, horizon 2 spacings) with G_c = `energy`.
     The notch is one spacing wide, on the bar's middle."""
     pad = 4 * cell
@@ -59,6 +59,7 @@ def bar_scene(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.
         "simulation": {"duration": duration, "fps": fps},
         "grid": {"cell_size": cell, "domain": {"min": [0, 0, 0], "max": hi}},
         "gravity": [0, 0, 0],
+        "contact": {"cracks": cracks},
         "bodies": [{
             "name": "bar",
             "geometry": {"mode": "cloud", "sampling": sampling,
@@ -151,11 +152,16 @@ def large_pieces(state, model, body: int = 0) -> int:
 
 
 def pull(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.4, after: float = 0.1,
-         sampling: str = "relaxed", damage_resistance: float = 1.0) -> Result:
-    """Pull the bar at `cell` until `after` seconds past its first separation (or `duration`); the energy balance."""
+         sampling: str = "relaxed", damage_resistance: float | None = None, cracks: str = "auto",
+         flip: float = 0.0, trace: list | None = None) -> Result:
+    """Pull the bar at `cell` until `after` seconds past its first separation (or `duration`); the energy balance.
+    `trace` (a list) receives per frame (t [s], W, strain, kinetic, cut bonds' energy, of it across the plane [J],
+    bonds cut)."""
     t0 = time.perf_counter()
-    scene = bar_scene(cell, energy, bar, duration, sampling=sampling)
-    scene["bodies"][0]["fracture"]["damage_resistance"] = damage_resistance
+    scene = bar_scene(cell, energy, bar, duration, sampling=sampling, cracks=cracks)
+    scene["simulation"]["flip"] = flip
+    if damage_resistance is not None:
+        scene["bodies"][0]["fracture"]["damage_resistance"] = damage_resistance
     sim = Sim(scene)
     model, state, solver = sim.model, sim.state, sim.solver
     b = model.bodies[0]
@@ -170,7 +176,8 @@ def pull(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.4, af
              "active": state.bond_active.copy()}
 
     def on_substep(st, dt):
-        tally["work"] += grip_work(st.grid, model.origin, 1.0 / model.dx, dt, held, st.particle_x,
+        grid = st.grid if st.has("grid") else st.grid_field[0]  # crack fields: the grips' nodes are not split
+        tally["work"] += grip_work(grid, model.origin, 1.0 / model.dx, dt, held, st.particle_x,
                                    model.pin_velocity, model.particle_mass, st.particle_force)
         if st.bonds_cut != tally["bonds_cut"]:  # bonds cut this step: the energy they held (positions before it)
             new = (tally["active"] == 1) & (st.bond_active == 0)
@@ -192,6 +199,9 @@ def pull(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.4, af
         solver.advance(state, min(state.time + sim.plan.frame_dt, end), on_substep)
         if last is not None and state.bonds_cut > 0:
             before, work_before, stored = last
+        if trace is not None:
+            trace.append((state.time, tally["work"], solver.strain_energy(state), solver.kinetic_energy(state),
+                          tally["cut"], tally["plane"], state.bonds_cut))
         if np.isnan(separation) and state.bonds_cut > 0 and large_pieces(state, model) >= 2:
             separation = state.time
             end = min(duration, state.time + after)
@@ -251,10 +261,13 @@ def damage_band(model, state, body: int = 0, grip: float = 0.0) -> dict:
                   "reach": float(x0[hit, 0].max() - x0[:, 0].min())}
 
 
-def slit_drag(cell: float = 0.02, speed: float = 0.1, duration: float = 0.05) -> float:
-    """A bar cut through by a slit half a cell wide (no bond crosses it), its right end pulled away at `speed`: the
-    left half's mean displacement over speed x duration. No force crosses the gap, so the answer is 0; the grid
-    couples material closer than its B-splines' reach (two cells either side)."""
+def slit_drag(cell: float = 0.02, speed: float = 0.1, duration: float = 0.05,
+              cracks: str = "auto") -> tuple[float, float]:
+    """A bar cut through by a slit half a cell wide (no bond crosses it; the lattice's layers either side of it lie
+    one spacing apart), its right end pulled away (pushed, for speed < 0) at `speed`: the left half's mean
+    displacement over speed x duration, and the smallest gap between the halves at the end in spacings (1 at rest).
+    Pulled, no force crosses the gap, so the first is 0; the grid couples material closer than its B-splines' reach
+    (two cells either side)."""
     c = [0.2, 0.1, 0.1]
     body = {"name": "bar",
             "geometry": {"mode": "cloud", "sampling": "lattice",
@@ -265,7 +278,9 @@ def slit_drag(cell: float = 0.02, speed: float = 0.1, duration: float = 0.05) ->
                       "velocity": [speed, 0.0, 0.0]}]}
     sim = Sim({"simulation": {"duration": duration, "fps": 100},
                "grid": {"cell_size": cell, "domain": {"min": [0, 0, 0], "max": [0.5, 0.2, 0.2]}},
-               "gravity": [0, 0, 0], "bodies": [body]})
+               "gravity": [0, 0, 0], "bodies": [body], "contact": {"cracks": cracks}})
     sim.advance(duration)
+    x = sim.state.particle_x
     left = sim.model.rest_x[:, 0] < c[0]
-    return float((sim.state.particle_x - sim.model.rest_x)[left, 0].mean() / (speed * duration))
+    gap = (x[~left, 0].min() - x[left, 0].max()) / sim.model.bodies[0].spacing
+    return float((x - sim.model.rest_x)[left, 0].mean() / (speed * duration)), float(gap)

@@ -5,9 +5,14 @@ from contextlib import contextmanager
 import numpy as np
 
 from pdmpm_cli.engine.contact import contact_update, overlap_box, surfaces
+from pdmpm_cli.engine.crack import crack_owners
 from pdmpm_cli.engine.fracture import crack_contact, crack_particle_update, inactive_fraction
 from pdmpm_cli.engine.parallel import particle_chunks
 from pdmpm_cli.engine.transfer import advect, g2p, grid_update, p2g, position_bounds
+
+
+# the crack-field arguments of the transfers for a body with one field (engine/crack.py)
+UNSPLIT = (np.zeros((0, 0, 0), dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64), 0.0)
 
 
 class CpuBackend:
@@ -34,13 +39,15 @@ class CpuBackend:
 
     def node_boxes(self, solver, state) -> tuple[np.ndarray, np.ndarray | None]:
         """Node index box [i0, i1) x [j0, j1) x [k0, k1) touched by the particles' B-spline stencils, and with a
-        field per body (plan.contact) `contact.overlap_box` of the bodies' own boxes, the only nodes where two fields
-        can have mass. The node box is then the union of the bodies' boxes, so every position is read once."""
+        field per body (plan.contact) `contact.overlap_box` of the fields' own boxes (a crack side's is its body's),
+        the only nodes where two fields can have mass. The node box is then the union of the bodies' boxes, so every
+        position is read once."""
         if not solver.plan.contact:
             return solver.box_of(*position_bounds(state.particle_x)), None
         boxes = [solver.box_of(*position_bounds(state.particle_x[b.start:b.end])) if b.end > b.start else None
                  for b in solver.model.bodies]
         live = np.array([b for b in boxes if b is not None])
+        boxes += [boxes[i] for i in solver.model.crack_bodies]
         if not len(live):
             return solver.box_of(*position_bounds(state.particle_x)), overlap_box(boxes)
         union = np.empty(6, dtype=np.int64)
@@ -48,29 +55,76 @@ class CpuBackend:
         return union, overlap_box(boxes)
 
     @staticmethod
-    def fields(solver, state):
-        """(grid, start, end) per grid field: the one grid and every particle, or each body's field and its
-        particles (plan.contact)."""
+    def cracked(solver, state, body: int, s: int, e: int) -> np.ndarray:
+        """The rows of the particles the transfers skip for a body: a crack body's dust (its other crack particles
+        stay on the grid, on their side's field: engine/crack.py), any other body's crack particles."""
+        return state.particle_dust[s:e] if body in solver.model.crack_bodies else state.particle_crack[s:e]
+
+    @staticmethod
+    def sides(solver, state, body: int) -> tuple:
+        """(owner, rest_x, crack_n, piece, half_h) of a body's crack fields as the transfers take them
+        (engine/crack.py), or stand-ins for a body with one field."""
+        m = solver.model
+        if body not in m.crack_bodies:
+            return UNSPLIT
+        b = m.bodies[body]
+        return (state.grid_owner[m.crack_bodies.index(body)], m.rest_x[b.start:b.end],
+                state.particle_crack_n[b.start:b.end], state.particle_piece[b.start:b.end], 0.5 * b.spacing)
+
+    def fields(self, solver, state):
+        """(grid, start, end, sides, side, cracked) per grid field: the one grid and every particle, or each body's
+        field and its particles (plan.contact), then the far side of each crack body's field (engine/crack.py)."""
+        m = solver.model
         if not solver.plan.contact:
-            return ((state.grid, 0, solver.model.n_particles),)
-        return tuple((state.grid_field[f], b.start, b.end) for f, b in enumerate(solver.model.bodies))
+            return ((state.grid, 0, m.n_particles, UNSPLIT, 0, state.particle_crack),)
+        out = [(state.grid_field[f], b.start, b.end, self.sides(solver, state, f), 0,
+                self.cracked(solver, state, f, b.start, b.end)) for f, b in enumerate(m.bodies)]
+        for c, i in enumerate(m.crack_bodies):
+            b = m.bodies[i]
+            out.append((state.grid_field[len(m.bodies) + c], b.start, b.end, self.sides(solver, state, i), 1,
+                        state.particle_dust[b.start:b.end]))
+        return tuple(out)
+
+    def readers(self, solver, state):
+        """(grid, far side's grid, start, end, sides, cracked) per body: the fields its particles read back from."""
+        m = solver.model
+        if not solver.plan.contact:
+            return ((state.grid, state.grid, 0, m.n_particles, UNSPLIT, state.particle_crack),)
+        out = []
+        for f, b in enumerate(m.bodies):
+            far = (state.grid_field[len(m.bodies) + m.crack_bodies.index(f)] if f in m.crack_bodies
+                   else state.grid_field[f])
+            out.append((state.grid_field[f], far, b.start, b.end, self.sides(solver, state, f),
+                        self.cracked(solver, state, f, b.start, b.end)))
+        return tuple(out)
+
+    def scatter(self, solver, state, dt, with_surfaces: bool):
+        """P2G of every field (and with_surfaces the fields' surfaces for contact) on solver.box; returns the
+        particles off the grid."""
+        m = solver.model
+        outside = 0
+        for f, (grid, s, e, sides, want, cracked) in enumerate(self.fields(solver, state)):
+            n = p2g(state.particle_x[s:e], state.particle_v[s:e], state.particle_C[s:e], m.particle_mass[s:e],
+                    state.particle_force[s:e], cracked, m.pin_mask[s:e], dt, m.origin, 1.0 / m.dx, solver.box,
+                    state.grid_private, grid, *sides, want)
+            outside += 0 if want else n  # a crack side's particles were counted with their body
+            if with_surfaces:
+                surfaces(state.particle_x[s:e], m.particle_mass[s:e], cracked, m.origin, 1.0 / m.dx,
+                         solver.contact_box, state.grid_surface_private, state.grid_surface[f], *sides, want)
+        return outside
 
     def p2g(self, solver, state, dt) -> int:
         m = solver.model
         solver.box, solver.contact_box = self.node_boxes(solver, state)
-        outside = 0
-        for f, (grid, s, e) in enumerate(self.fields(solver, state)):
-            outside += p2g(state.particle_x[s:e], state.particle_v[s:e], state.particle_C[s:e], m.particle_mass[s:e],
-                           state.particle_force[s:e], state.particle_crack[s:e], m.pin_mask[s:e], dt, m.origin,
-                           1.0 / m.dx, solver.box, state.grid_private, grid)
-            if solver.plan.contact:
-                surfaces(state.particle_x[s:e], m.particle_mass[s:e], state.particle_crack[s:e], m.origin, 1.0 / m.dx,
-                         solver.contact_box, state.grid_surface_private, state.grid_surface[f])
-        return outside
+        for c, i in enumerate(m.crack_bodies):
+            b = m.bodies[i]
+            crack_owners(b.start, b.end, state.particle_x, state.particle_crack_s, state.particle_piece[b.start:b.end],
+                         m.origin, 1.0 / m.dx, solver.box, state.grid_owner[c])
+        return self.scatter(solver, state, dt, solver.plan.contact)
 
     def grid_update(self, solver, state, dt):
         m = solver.model
-        for grid, _, _ in self.fields(solver, state):
+        for grid, *_ in self.fields(solver, state):
             grid_update(grid, dt, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, solver.box,
                         state.time + dt, m.colliders, m.wall_boundary, m.wall_friction)
 
@@ -82,11 +136,11 @@ class CpuBackend:
     def g2p(self, solver, state, dt) -> tuple[float, int]:
         m = solver.model
         vmax, bad = 0.0, 0
-        for grid, s, e in self.fields(solver, state):
+        for grid, far, s, e, sides, cracked in self.readers(solver, state):
             v, b = g2p(grid, dt, m.origin, 1.0 / m.dx, state.time + dt, m.colliders, m.pin_mask[s:e],
-                       m.pin_velocity[s:e], m.pin_stop[s:e], m.flip, state.particle_crack[s:e],
-                       state.particle_x[s:e],
-                       state.particle_v[s:e], state.particle_C[s:e], particle_chunks())
+                       m.pin_velocity[s:e], m.pin_stop[s:e], m.flip, cracked,
+                       state.particle_x[s:e], state.particle_v[s:e], state.particle_C[s:e], particle_chunks(), far,
+                       *sides)
             vmax, bad = max(vmax, v), bad + b
         return vmax, bad
 
@@ -95,32 +149,33 @@ class CpuBackend:
         contact again), at the positions G2P read, then every particle moves with them (transfer.advect_at)."""
         m = solver.model
         t_new = state.time + dt
-        fields = self.fields(solver, state)
-        for grid, s, e in fields:
-            p2g(state.particle_x[s:e], state.particle_v[s:e], state.particle_C[s:e], m.particle_mass[s:e],
-                state.particle_force[s:e], state.particle_crack[s:e], m.pin_mask[s:e], 0.0, m.origin, 1.0 / m.dx,
-                solver.box, state.grid_private, grid)
+        self.scatter(solver, state, 0.0, False)
+        for grid, *_ in self.fields(solver, state):
             grid_update(grid, 0.0, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, solver.box, t_new,
                         m.colliders, m.wall_boundary, m.wall_friction)
         if solver.plan.contact:
             self.contact(solver, state, 0.0)
         vmax, bad = 0.0, 0
-        for grid, s, e in fields:
-            v, b = advect(grid, dt, m.origin, 1.0 / m.dx, t_new, m.colliders, m.pin_mask[s:e],
-                          state.particle_crack[s:e], state.particle_x[s:e], state.particle_v[s:e], particle_chunks())
+        for grid, far, s, e, sides, cracked in self.readers(solver, state):
+            v, b = advect(grid, dt, m.origin, 1.0 / m.dx, t_new, m.colliders, m.pin_mask[s:e], cracked,
+                          state.particle_x[s:e], state.particle_v[s:e], particle_chunks(),
+                          far, *sides)
             vmax, bad = max(vmax, v), bad + b
         return vmax, bad
 
     def crack(self, solver, state, dt) -> tuple[float, int]:
         """Crack particles take their kick and meet their own body's material, then (contact: a field per body)
-        the other bodies' material with no second kick (dt = 0), as they met all material on one shared grid
-        (crack_index is sorted, bodies are particle ranges)."""
+        the other bodies' material and the far side of their own body's cracks with no second kick (dt = 0), as
+        they met all material on one shared grid (crack_index is sorted, bodies are particle ranges)."""
         m, idx = solver.model, solver.crack_index
         fields = self.fields(solver, state)
         for own in (True, False):  # with one field the second pass has no particles
-            for grid, s, e in fields:
+            for grid, s, e, _, want, _ in fields:
                 lo, hi = np.searchsorted(idx, (s, e))
-                which = idx[lo:hi] if own else np.concatenate((idx[:lo], idx[hi:]))
+                if own:
+                    which = idx[lo:hi] if not want else idx[:0]
+                else:
+                    which = idx if want else np.concatenate((idx[:lo], idx[hi:]))
                 crack_contact(grid, dt if own else 0.0, m.gravity, m.origin, 1.0 / m.dx, which,
                               state.particle_damage, m.particle_mass, m.particle_volume, state.particle_force,
                               state.particle_x, state.particle_v)

@@ -181,14 +181,14 @@ def zero_box(box, grid):
 
 @cuda.jit
 def p2g_kernel(particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt, origin,
-               inv_dx, grid):
+               inv_dx, grid, no_owner, no_rows, no_piece):
     p = cuda.grid(1)
     if p < particle_x.shape[0]:
         wx = cuda.local.array(4, float64)
         wy = cuda.local.array(4, float64)
         wz = cuda.local.array(4, float64)
         d_p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt,
-                 origin, inv_dx, grid, wx, wy, wz)
+                 origin, inv_dx, grid, wx, wy, wz, no_owner, no_rows, no_rows, no_piece, 0.0, 0)
 
 
 @cuda.jit
@@ -212,7 +212,8 @@ def field_bounds(particle_x, bounds):
 
 
 @cuda.jit
-def surface_kernel(particle_x, particle_mass, particle_crack, origin, inv_dx, box, grid_surface):
+def surface_kernel(particle_x, particle_mass, particle_crack, origin, inv_dx, box, grid_surface, no_owner, no_rows,
+                   no_piece):
     """contact.surfaces on the GPU: the particles whose stencils meet the box (contact.overlap_box) scatter."""
     p = cuda.grid(1)
     if p < particle_x.shape[0] and not d_stencil_off_box(particle_x, p, origin, inv_dx, box):
@@ -223,7 +224,7 @@ def surface_kernel(particle_x, particle_mass, particle_crack, origin, inv_dx, bo
         gy = cuda.local.array(4, float64)
         gz = cuda.local.array(4, float64)
         d_surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, grid_surface, wx, wy, wz, gx, gy,
-                     gz)
+                     gz, no_owner, no_rows, no_rows, no_piece, 0.0, 0)
 
 
 @cuda.jit
@@ -258,7 +259,7 @@ def add_stats(p, s, particle_x, stats):
 
 @cuda.jit
 def g2p_kernel(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip, particle_crack,
-               particle_x, particle_v, particle_C, stats):
+               particle_x, particle_v, particle_C, stats, no_owner, no_rows, no_piece):
     p = cuda.grid(1)
     if p < particle_x.shape[0]:
         wx = cuda.local.array(4, float64)
@@ -267,13 +268,14 @@ def g2p_kernel(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocit
         v = cuda.local.array(3, float64)
         nrm = cuda.local.array(3, float64)
         s = d_g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip,
-                     particle_crack, particle_x, particle_v, particle_C, wx, wy, wz, v, nrm)
+                     particle_crack, particle_x, particle_v, particle_C, wx, wy, wz, v, nrm, grid, no_owner, no_rows,
+                     no_rows, no_piece, 0.0)
         add_stats(p, s, particle_x, stats)
 
 
 @cuda.jit
 def advect_kernel(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack, particle_x, particle_v,
-                  stats):
+                  stats, no_owner, no_rows, no_piece):
     p = cuda.grid(1)
     if p < particle_x.shape[0]:
         wx = cuda.local.array(4, float64)
@@ -281,7 +283,7 @@ def advect_kernel(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle
         wz = cuda.local.array(4, float64)
         nrm = cuda.local.array(3, float64)
         s = d_advect_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack, particle_x,
-                        particle_v, wx, wy, wz, nrm)
+                        particle_v, wx, wy, wz, nrm, grid, no_owner, no_rows, no_rows, no_piece, 0.0)
         add_stats(p, s, particle_x, stats)
 
 
@@ -385,6 +387,9 @@ class CudaBackend:
         self.stats[STAT_LO:STAT_LO + 3] = state.particle_x.min(axis=0) if len(state.particle_x) else 0.0
         self.stats[STAT_HI:STAT_HI + 3] = state.particle_x.max(axis=0) if len(state.particle_x) else 0.0
         self.dev_stats = cuda.to_device(self.stats)
+        # stand-ins for the crack fields' arrays (contact.cracks: separate runs on the CPU only)
+        self.unsplit = (cuda.to_device(np.zeros((0, 0, 0), np.int64)), cuda.to_device(np.zeros((0, 3))),
+                        cuda.to_device(np.zeros(0, np.int64)))
         self.solver = solver
 
     def sync(self, state):
@@ -456,11 +461,12 @@ class CudaBackend:
             x, mass, crack = rows(a.particle_x, s, e), rows(d.particle_mass, s, e), rows(a.particle_crack, s, e)
             launch(zero_box, nodes_in_box, self.box, grid)
             launch(p2g_kernel, e - s, x, rows(a.particle_v, s, e), rows(a.particle_C, s, e), mass,
-                   rows(a.particle_force, s, e), crack, rows(d.pin_mask, s, e), dt, d.origin, 1.0 / m.dx, grid)
+                   rows(a.particle_force, s, e), crack, rows(d.pin_mask, s, e), dt, d.origin, 1.0 / m.dx, grid,
+                   *self.unsplit)
             if solver.plan.contact:  # no overlap: nothing to launch
                 launch(zero_box, nodes_in_contact, self.dev_contact_box, a.grid_surface[f])
                 launch(surface_kernel, (e - s) if nodes_in_contact else 0, x, mass, crack, d.origin, 1.0 / m.dx,
-                       self.dev_contact_box, a.grid_surface[f])
+                       self.dev_contact_box, a.grid_surface[f], *self.unsplit)
         return 0
 
     def contact_box(self, solver):
@@ -501,7 +507,7 @@ class CudaBackend:
             pins = (rows(d.pin_mask, s, e), rows(d.pin_velocity, s, e), rows(d.pin_stop, s, e))
             launch(g2p_kernel, e - s, grid, dt, d.origin, 1.0 / m.dx, state.time + dt, d.colliders, *pins, m.flip,
                    rows(a.particle_crack, s, e), rows(a.particle_x, s, e), rows(a.particle_v, s, e),
-                   rows(a.particle_C, s, e), self.dev_stats)
+                   rows(a.particle_C, s, e), self.dev_stats, *self.unsplit)
         if solver.plan.remap:
             return 0.0, 0  # read back after the remap's position pass
         self.dev_stats.copy_to_host(self.stats)
@@ -519,14 +525,15 @@ class CudaBackend:
             launch(zero_box, nodes_in_box, self.box, grid)
             launch(p2g_kernel, e - s, rows(a.particle_x, s, e), rows(a.particle_v, s, e), rows(a.particle_C, s, e),
                    rows(d.particle_mass, s, e), rows(a.particle_force, s, e), rows(a.particle_crack, s, e),
-                   rows(d.pin_mask, s, e), 0.0, d.origin, 1.0 / m.dx, grid)
+                   rows(d.pin_mask, s, e), 0.0, d.origin, 1.0 / m.dx, grid, *self.unsplit)
             launch(grid_update_kernel, nodes_in_box, grid, 0.0, d.gravity, d.wind_velocity, m.wind_drag, d.origin,
                    m.dx, self.box, t_new, d.colliders, m.wall_boundary, m.wall_friction)
         if solver.plan.contact:
             self.contact(solver, state, 0.0)
         for grid, s, e in fields:
             launch(advect_kernel, e - s, grid, dt, d.origin, 1.0 / m.dx, t_new, d.colliders, rows(d.pin_mask, s, e),
-                   rows(a.particle_crack, s, e), rows(a.particle_x, s, e), rows(a.particle_v, s, e), self.dev_stats)
+                   rows(a.particle_crack, s, e), rows(a.particle_x, s, e), rows(a.particle_v, s, e), self.dev_stats,
+                   *self.unsplit)
         self.dev_stats.copy_to_host(self.stats)
         return float(self.stats[STAT_VMAX]), int(self.stats[STAT_BAD])
 

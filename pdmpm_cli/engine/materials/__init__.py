@@ -36,7 +36,7 @@ def declared_fields() -> dict:
     from pdmpm_cli.engine import fields
 
     out = {f.name: f for f in fields.CORE + fields.GRIDS + fields.FBAR + fields.PAIR + fields.FRACTURE
-                                  + fields.FRACTURE_CELLS + fields.CONTACT}
+                                  + fields.FRACTURE_CELLS + fields.CONTACT + fields.CRACK_SIDES}
     for kind in MATERIALS.values():
         for f in kind.fields:
             if out.setdefault(f.name, f) != f:
