@@ -35,7 +35,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from pdmpm_cli.engine.transfer import node_side, stencil_on_grid, stencil_with_gradients
+from pdmpm_cli.engine.transfer import node_side, stencil_off_box, stencil_on_grid, stencil_with_gradients
 
 CONTACT_GAP = 1.25  # contact acts where the fields' mass centres at a node are closer than this along n [cells]
 PENALTY_GAP = 1.0  # penalty: the fields' mass centres at a node closer than this overlap [cells] (0.93 on the
@@ -56,13 +56,15 @@ def scatter_surface(g, i, j, k, g0, g1, g2, s0, s1, s2):
 
 @njit(cache=True, inline="always")
 def surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, g, wx, wy, wz, gx, gy, gz, owner, rest_x,
-               crack_n, piece, half_h, want):
+               crack_n, piece, half_h, cbox, want):
     """Particle p's share of its field's mass gradient m_p grad N_I(x_p) [kg/m] and of the mass-weighted offset
     m_p N_I (x_p - x_I) [kg m] -> g (the particles P2G scatters: crack particles and off-grid ones do not; with
     crack fields, at the nodes where p lies on side `want`, as transfer.p2g_at)."""
     if particle_crack.shape[0] > 0 and particle_crack[p] != 0:
         return
-    sided = owner.shape[0] > 0
+    sided = owner.shape[0] > 0 and not stencil_off_box(particle_x, p, origin, inv_dx, cbox)
+    if want == 1 and not sided:
+        return
     fx, fy, fz, bx, by, bz = stencil_with_gradients(particle_x, p, origin, inv_dx, wx, wy, wz, gx, gy, gz)
     if not stencil_on_grid(fx, fy, fz, g):
         return
@@ -97,19 +99,9 @@ def overlap_box(boxes) -> np.ndarray:
     return np.array([lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]], dtype=np.int64)
 
 
-@njit(cache=True, inline="always")
-def stencil_off_box(particle_x, p, origin, inv_dx, box):
-    """Whether particle p's stencil surely misses the node box (it lies within cells floor(x) - 2 .. floor(x) + 3)."""
-    for a in range(3):
-        c = math.floor((particle_x[p, a] - origin[a]) * inv_dx)
-        if c + 3 < box[2 * a] or c - 2 >= box[2 * a + 1]:
-            return True
-    return False
-
-
 @njit(parallel=True, cache=True)
 def surfaces(particle_x, particle_mass, particle_crack, origin, inv_dx, box, private, out, owner, rest_x, crack_n,
-             piece, half_h, want):
+             piece, half_h, cbox, want):
     """`surface_at` for every particle whose stencil meets the node box (`overlap_box`) -> out on the box: thread t
     scatters a fixed particle range into private[t], then the private grids are summed in thread order (as
     transfer.p2g, so runs are reproducible). A particle's nodes outside the box take stale sums in private[t], which
@@ -129,7 +121,7 @@ def surfaces(particle_x, particle_mass, particle_crack, origin, inv_dx, box, pri
             if stencil_off_box(particle_x, p, origin, inv_dx, box):
                 continue
             surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, g, wx, wy, wz, gx, gy, gz, owner,
-                       rest_x, crack_n, piece, half_h, want)
+                       rest_x, crack_n, piece, half_h, cbox, want)
     for i in prange(box[0], box[1]):
         for j in range(box[2], box[3]):
             for k in range(box[4], box[5]):

@@ -72,12 +72,15 @@ def crack_owners(start, end, particle_x, crack_s, piece, origin, inv_dx, box, ow
     """owner[node] = the particle of start..end (its index from start) with the largest crack_s (the lower index on
     a tie) whose stencil reaches the node, encoded -index - 2 where such particles of two pieces reach it; -1 where
     none does; over the node box (cleared first). particle_x and crack_s are the whole State's rows, piece the body's.
-    Serial: only the particles next to a crack take part."""
+    Returns the box of the owned nodes [i0, i1) x [j0, j1) x [k0, k1) (all 0 when none). Serial: only the particles
+    next to a crack take part."""
     for i in range(box[0], box[1]):
         for j in range(box[2], box[3]):
             for k in range(box[4], box[5]):
                 owner[i, j, k] = -1
     wx, wy, wz = np.empty(4), np.empty(4), np.empty(4)
+    out = np.zeros(6, dtype=np.int64)
+    out[0::2] = np.iinfo(np.int64).max
     for p in range(start, end):
         s = crack_s[p]
         if s <= 0.0:
@@ -85,6 +88,9 @@ def crack_owners(start, end, particle_x, crack_s, piece, origin, inv_dx, box, ow
         fx, fy, fz, bx, by, bz = stencil(particle_x, p, origin, inv_dx, wx, wy, wz)
         if not stencil_on_grid(fx, fy, fz, owner):
             continue
+        out[0], out[1] = min(out[0], bx), max(out[1], bx + 4)
+        out[2], out[3] = min(out[2], by), max(out[3], by + 4)
+        out[4], out[5] = min(out[4], bz), max(out[5], bz + 4)
         q = p - start
         for i in range(4):
             for j in range(4):
@@ -100,3 +106,6 @@ def crack_owners(start, end, particle_x, crack_s, piece, origin, inv_dx, box, ow
                     if s > crack_s[start + o]:
                         o = q
                     owner[bx + i, by + j, bz + k] = -o - 2 if two else o
+    if out[1] == 0:
+        out[:] = 0
+    return out

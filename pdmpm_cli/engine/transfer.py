@@ -57,6 +57,16 @@ def stencil_with_gradients(particle_x, p, origin, inv_dx, wx, wy, wz, gx, gy, gz
 
 
 @njit(cache=True, inline="always")
+def stencil_off_box(particle_x, p, origin, inv_dx, box):
+    """Whether particle p's stencil surely misses the node box (it lies within cells floor(x) - 2 .. floor(x) + 3)."""
+    for a in range(3):
+        c = math.floor((particle_x[p, a] - origin[a]) * inv_dx)
+        if c + 3 < box[2 * a] or c - 2 >= box[2 * a + 1]:
+            return True
+    return False
+
+
+@njit(cache=True, inline="always")
 def node_side(p, o, rest_x, crack_n, piece, half_h):
     """Field of particle p at a node that particle o's crack splits (engine/crack.py: o = -1 not split; o <= -2 the
     node sees two pieces and particle -o - 2 owns it): 1 in another piece than the owner's, or in the same one beyond
@@ -108,7 +118,7 @@ def position_bounds(particle_x):
 
 @njit(cache=True, inline="always")
 def p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt, origin,
-           inv_dx, g, wx, wy, wz, owner, rest_x, crack_n, piece, half_h, want):
+           inv_dx, g, wx, wy, wz, owner, rest_x, crack_n, piece, half_h, cbox, want):
     """P2G of particle p: mass, APIC momentum and dt * bond force (eq. 7: f_I = sum_p N_I(x_p) f_p) -> g.
     Returns 1 if its stencil is off the grid (it then scatters nothing), else 0. On a FLIP grid (FLIP_CHANNELS)
     the impulse goes to its own channels, so that the grid update can keep the velocity before it, v_I^n.
@@ -117,10 +127,13 @@ def p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force,
     they have their own integrator (section 6). Pinned particles bring their prescribed momentum but not their
     bond force: that force is the grip's reaction, and scattering it would pull their free neighbours.
 
-    With crack fields (owner not empty, engine/crack.py) only the nodes where p lies on side `want` get its share."""
+    With crack fields (owner not empty, engine/crack.py) only the nodes where p lies on side `want` get its share;
+    a particle whose stencil misses the split nodes' box `cbox` is all on side 0."""
     if particle_crack.shape[0] > 0 and particle_crack[p] != 0:
         return 0
-    sided = owner.shape[0] > 0
+    sided = owner.shape[0] > 0 and not stencil_off_box(particle_x, p, origin, inv_dx, cbox)
+    if want == 1 and not sided:
+        return 0
     fx, fy, fz, bx, by, bz = stencil(particle_x, p, origin, inv_dx, wx, wy, wz)
     if not stencil_on_grid(fx, fy, fz, g):
         return 1
@@ -166,7 +179,7 @@ def p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force,
 
 @njit(parallel=True, cache=True)
 def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt, origin,
-        inv_dx, box, grid_private, grid, owner, rest_x, crack_n, piece, half_h, want):
+        inv_dx, box, grid_private, grid, owner, rest_x, crack_n, piece, half_h, cbox, want):
     """`p2g_at` for every particle -> grid: thread t scatters a fixed particle range into grid_private[t] (cleared
     on the node box), then the private grids are summed in thread order. Returns the number of particles off the
     grid. With crack fields, `grid` is side `want` of the body's field (engine/crack.py)."""
@@ -185,7 +198,8 @@ def p2g(particle_x, particle_v, particle_C, particle_mass, particle_force, parti
         wz = np.empty(4)
         for p in range(t * n // nt, (t + 1) * n // nt):
             outside += p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack,
-                              pin_mask, dt, origin, inv_dx, g, wx, wy, wz, owner, rest_x, crack_n, piece, half_h, want)
+                              pin_mask, dt, origin, inv_dx, g, wx, wy, wz, owner, rest_x, crack_n, piece, half_h,
+                              cbox, want)
     for i in prange(box[0], box[1]):
         for j in range(box[2], box[3]):
             for k in range(box[4], box[5]):
@@ -251,11 +265,11 @@ def pin_share(stop, t_new, dt):
 
 
 @njit(cache=True, inline="always")
-def affine_sums(grid, grid1, c, bx, by, bz, fx, fy, fz, dx, wx, wy, wz, p, owner, rest_x, crack_n, piece, half_h):
+def affine_sums(grid, grid1, c, bx, by, bz, fx, fy, fz, dx, wx, wy, wz, sided, p, owner, rest_x, crack_n, piece,
+                half_h):
     """sum_i w_i u_i and sum_i w_i u_i (x_i - x_p)^T over a particle's 64 nodes, u the grid's channels c..c+2:
-    the velocity and the affine moments B_p of APIC's G2P (step 5). With crack fields (owner not empty) u is read
-    from grid1 at the nodes where particle p lies beyond the crack plane (engine/crack.py)."""
-    sided = owner.shape[0] > 0
+    the velocity and the affine moments B_p of APIC's G2P (step 5). `sided` (crack fields, engine/crack.py): u is
+    read from grid1 at the nodes where particle p lies on side 1."""
     # The sums over the 64 nodes of w u and w u (x_i - x_p) factor axis by axis (w = wx wy wz, and each component
     # of x_i - x_p depends on one axis): sum over k first, then j, then i.
     v0 = v1 = v2 = 0.0
@@ -312,7 +326,8 @@ def affine_sums(grid, grid1, c, bx, by, bz, fx, fy, fz, dx, wx, wy, wz, p, owner
 
 @njit(cache=True, inline="always")
 def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip, particle_crack,
-           particle_x, particle_v, particle_C, wx, wy, wz, v, nrm, grid1, owner, rest_x, crack_n, piece, half_h):
+           particle_x, particle_v, particle_C, wx, wy, wz, v, nrm, grid1, owner, rest_x, crack_n, piece, half_h,
+           cbox):
     """G2P of particle p: velocity and APIC affine matrix (step 5), pins, particle collisions (step 6), advection.
     Returns its speed, -1 when it is not finite, 0 for a crack-surface particle (left to its own integrator).
 
@@ -325,16 +340,17 @@ def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity
         return 0.0
     dx = 1.0 / inv_dx
     scale = 3.0 * inv_dx * inv_dx  # D_p^-1 for cubic B-splines (Jiang et al. 2015)
+    sided = owner.shape[0] > 0 and not stencil_off_box(particle_x, p, origin, inv_dx, cbox)
     fx, fy, fz, bx, by, bz = stencil(particle_x, p, origin, inv_dx, wx, wy, wz)
     v0, v1, v2, b00, b01, b02, b10, b11, b12, b20, b21, b22 = affine_sums(grid, grid1, 1, bx, by, bz, fx, fy, fz,
-                                                                         dx, wx, wy, wz, p, owner, rest_x, crack_n,
-                                                                         piece, half_h)
+                                                                         dx, wx, wy, wz, sided, p, owner, rest_x,
+                                                                         crack_n, piece, half_h)
     pinned = pin_mask.shape[0] > 0 and pin_mask[p] != 0
     remapped = grid.shape[3] > CHANNELS
     if remapped and not pinned:
         o0, o1, o2, a00, a01, a02, a10, a11, a12, a20, a21, a22 = affine_sums(grid, grid1, 4, bx, by, bz, fx, fy,
-                                                                             fz, dx, wx, wy, wz, p, owner, rest_x,
-                                                                             crack_n, piece, half_h)
+                                                                             fz, dx, wx, wy, wz, sided, p, owner,
+                                                                             rest_x, crack_n, piece, half_h)
         v0 += flip * (particle_v[p, 0] - o0)
         v1 += flip * (particle_v[p, 1] - o1)
         v2 += flip * (particle_v[p, 2] - o2)
@@ -372,7 +388,7 @@ def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity
 
 @njit(parallel=True, cache=True)
 def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip, particle_crack,
-        particle_x, particle_v, particle_C, chunks, grid1, owner, rest_x, crack_n, piece, half_h):
+        particle_x, particle_v, particle_C, chunks, grid1, owner, rest_x, crack_n, piece, half_h, cbox):
     """`g2p_at` for every particle, in `chunks` static chunks, each with its own scratch. Returns (max particle
     speed, number of non-finite particles)."""
     n = particle_x.shape[0]
@@ -387,7 +403,7 @@ def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_
         for p in range(t * n // chunks, (t + 1) * n // chunks):
             s = g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip,
                        particle_crack, particle_x, particle_v, particle_C, wx, wy, wz, v, nrm, grid1, owner, rest_x,
-                       crack_n, piece, half_h)
+                       crack_n, piece, half_h, cbox)
             if s < 0.0:
                 chunk_bad[t] += 1
             else:
@@ -397,7 +413,7 @@ def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_
 
 @njit(cache=True, inline="always")
 def advect_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack, particle_x, particle_v, wx, wy,
-              wz, nrm, grid1, owner, rest_x, crack_n, piece, half_h):
+              wz, nrm, grid1, owner, rest_x, crack_n, piece, half_h, cbox):
     """MUSL's position update of particle p (Sulsky et al. 1995), after G2P on a FLIP grid: x_p += dt sum_I w_Ip v_I
     with v_I the particles' new velocities mapped back to the grid (P2G with no force, then walls, colliders and
     contact), at the positions G2P read. With frozen weights the FLIP update and this one conserve the energy
@@ -405,7 +421,7 @@ def advect_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_
     step (as g2p_at does for APIC) makes positions and velocities disagree by dt^2 per step, which damps elastic
     motion at any step size. Pinned particles travel their prescribed velocity. Returns the speed as g2p_at. Crack
     fields as in g2p_at."""
-    sided = owner.shape[0] > 0
+    sided = owner.shape[0] > 0 and not stencil_off_box(particle_x, p, origin, inv_dx, cbox)
     if particle_crack.shape[0] > 0 and particle_crack[p] != 0:
         return 0.0
     pinned = pin_mask.shape[0] > 0 and pin_mask[p] != 0
@@ -435,7 +451,7 @@ def advect_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_
 
 @njit(parallel=True, cache=True)
 def advect(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack, particle_x, particle_v, chunks, grid1,
-           owner, rest_x, crack_n, piece, half_h):
+           owner, rest_x, crack_n, piece, half_h, cbox):
     """`advect_at` for every particle, in `chunks` static chunks. Returns (max particle speed, number of non-finite
     particles)."""
     n = particle_x.shape[0]
@@ -448,7 +464,8 @@ def advect(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack,
         nrm = np.empty(3)
         for p in range(t * n // chunks, (t + 1) * n // chunks):
             s = advect_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack, particle_x,
-                          particle_v, wx, wy, wz, nrm, grid1, owner, rest_x, crack_n, piece, half_h)
+                          particle_v, wx, wy, wz, nrm, grid1, owner, rest_x, crack_n, piece, half_h,
+                          cbox)
             if s < 0.0:
                 chunk_bad[t] += 1
             else:

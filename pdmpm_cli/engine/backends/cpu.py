@@ -12,13 +12,17 @@ from pdmpm_cli.engine.transfer import advect, g2p, grid_update, p2g, position_bo
 
 
 # the crack-field arguments of the transfers for a body with one field (engine/crack.py)
-UNSPLIT = (np.zeros((0, 0, 0), dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64), 0.0)
+UNSPLIT = (np.zeros((0, 0, 0), dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64), 0.0,
+           np.zeros(6, dtype=np.int64))
 
 
 class CpuBackend:
     """Arrays are the host State's and the Model's own; a kernel runs as its CPU loop (Kernel.cpu)."""
 
     name = "cpu"
+
+    def __init__(self):
+        self.crack_boxes = []  # per crack body: the node box its cracks split this step (engine/crack.py)
 
     def start(self, solver, state):
         solver.a, solver.m = state, solver.model
@@ -37,22 +41,20 @@ class CpuBackend:
     def run(self, kernel, start, end, *args):
         return kernel.cpu(start, end, *args)
 
-    def node_boxes(self, solver, state) -> tuple[np.ndarray, np.ndarray | None]:
-        """Node index box [i0, i1) x [j0, j1) x [k0, k1) touched by the particles' B-spline stencils, and with a
-        field per body (plan.contact) `contact.overlap_box` of the fields' own boxes (a crack side's is its body's),
-        the only nodes where two fields can have mass. The node box is then the union of the bodies' boxes, so every
-        position is read once."""
+    def node_boxes(self, solver, state) -> tuple[np.ndarray, list | None]:
+        """Node index box [i0, i1) x [j0, j1) x [k0, k1) touched by the particles' B-spline stencils and, with a
+        field per body (plan.contact), each body's own box (None for a body without particles). The node box is then
+        the union of the bodies' boxes, so every position is read once."""
         if not solver.plan.contact:
             return solver.box_of(*position_bounds(state.particle_x)), None
         boxes = [solver.box_of(*position_bounds(state.particle_x[b.start:b.end])) if b.end > b.start else None
                  for b in solver.model.bodies]
         live = np.array([b for b in boxes if b is not None])
-        boxes += [boxes[i] for i in solver.model.crack_bodies]
         if not len(live):
-            return solver.box_of(*position_bounds(state.particle_x)), overlap_box(boxes)
+            return solver.box_of(*position_bounds(state.particle_x)), boxes
         union = np.empty(6, dtype=np.int64)
         union[0::2], union[1::2] = live[:, 0::2].min(axis=0), live[:, 1::2].max(axis=0)
-        return union, overlap_box(boxes)
+        return union, boxes
 
     @staticmethod
     def cracked(solver, state, body: int, s: int, e: int) -> np.ndarray:
@@ -60,16 +62,15 @@ class CpuBackend:
         stay on the grid, on their side's field: engine/crack.py), any other body's crack particles."""
         return state.particle_dust[s:e] if body in solver.model.crack_bodies else state.particle_crack[s:e]
 
-    @staticmethod
-    def sides(solver, state, body: int) -> tuple:
-        """(owner, rest_x, crack_n, piece, half_h) of a body's crack fields as the transfers take them
-        (engine/crack.py), or stand-ins for a body with one field."""
+    def sides(self, solver, state, body: int) -> tuple:
+        """(owner, rest_x, crack_n, piece, half_h, box of the split nodes) of a body's crack fields as the transfers
+        take them (engine/crack.py), or stand-ins for a body with one field."""
         m = solver.model
         if body not in m.crack_bodies:
             return UNSPLIT
-        b = m.bodies[body]
-        return (state.grid_owner[m.crack_bodies.index(body)], m.rest_x[b.start:b.end],
-                state.particle_crack_n[b.start:b.end], state.particle_piece[b.start:b.end], 0.5 * b.spacing)
+        b, c = m.bodies[body], m.crack_bodies.index(body)
+        return (state.grid_owner[c], m.rest_x[b.start:b.end], state.particle_crack_n[b.start:b.end],
+                state.particle_piece[b.start:b.end], 0.5 * b.spacing, self.crack_boxes[c])
 
     def fields(self, solver, state):
         """(grid, start, end, sides, side, cracked) per grid field: the one grid and every particle, or each body's
@@ -104,8 +105,13 @@ class CpuBackend:
         m = solver.model
         outside = 0
         for f, (grid, s, e, sides, want, cracked) in enumerate(self.fields(solver, state)):
+            box = solver.box
+            if want:  # a crack's far side has mass only on the nodes its cracks split
+                b = solver.box
+                grid[b[0]:b[1], b[2]:b[3], b[4]:b[5]] = 0.0
+                box = sides[-1]
             n = p2g(state.particle_x[s:e], state.particle_v[s:e], state.particle_C[s:e], m.particle_mass[s:e],
-                    state.particle_force[s:e], cracked, m.pin_mask[s:e], dt, m.origin, 1.0 / m.dx, solver.box,
+                    state.particle_force[s:e], cracked, m.pin_mask[s:e], dt, m.origin, 1.0 / m.dx, box,
                     state.grid_private, grid, *sides, want)
             outside += 0 if want else n  # a crack side's particles were counted with their body
             if with_surfaces:
@@ -114,12 +120,17 @@ class CpuBackend:
         return outside
 
     def p2g(self, solver, state, dt) -> int:
+        """The nodes' owners of each crack body (engine/crack.py), then P2G; with a field per body, the contact box
+        is `contact.overlap_box` of the fields' boxes (a crack side's: the nodes its cracks split), the only nodes
+        where two fields can have mass."""
         m = solver.model
-        solver.box, solver.contact_box = self.node_boxes(solver, state)
-        for c, i in enumerate(m.crack_bodies):
-            b = m.bodies[i]
-            crack_owners(b.start, b.end, state.particle_x, state.particle_crack_s, state.particle_piece[b.start:b.end],
-                         m.origin, 1.0 / m.dx, solver.box, state.grid_owner[c])
+        solver.box, boxes = self.node_boxes(solver, state)
+        self.crack_boxes = [crack_owners(m.bodies[i].start, m.bodies[i].end, state.particle_x, state.particle_crack_s,
+                                         state.particle_piece[m.bodies[i].start:m.bodies[i].end], m.origin,
+                                         1.0 / m.dx, solver.box, state.grid_owner[c])
+                            for c, i in enumerate(m.crack_bodies)]
+        solver.contact_box = None if boxes is None else overlap_box(
+            boxes + [b if b[1] > b[0] else None for b in self.crack_boxes])
         return self.scatter(solver, state, dt, solver.plan.contact)
 
     def grid_update(self, solver, state, dt):

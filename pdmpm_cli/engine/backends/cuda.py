@@ -181,14 +181,14 @@ def zero_box(box, grid):
 
 @cuda.jit
 def p2g_kernel(particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt, origin,
-               inv_dx, grid, no_owner, no_rows, no_piece):
+               inv_dx, grid, no_owner, no_rows, no_piece, no_box):
     p = cuda.grid(1)
     if p < particle_x.shape[0]:
         wx = cuda.local.array(4, float64)
         wy = cuda.local.array(4, float64)
         wz = cuda.local.array(4, float64)
         d_p2g_at(p, particle_x, particle_v, particle_C, particle_mass, particle_force, particle_crack, pin_mask, dt,
-                 origin, inv_dx, grid, wx, wy, wz, no_owner, no_rows, no_rows, no_piece, 0.0, 0)
+                 origin, inv_dx, grid, wx, wy, wz, no_owner, no_rows, no_rows, no_piece, 0.0, no_box, 0)
 
 
 @cuda.jit
@@ -213,7 +213,7 @@ def field_bounds(particle_x, bounds):
 
 @cuda.jit
 def surface_kernel(particle_x, particle_mass, particle_crack, origin, inv_dx, box, grid_surface, no_owner, no_rows,
-                   no_piece):
+                   no_piece, no_box):
     """contact.surfaces on the GPU: the particles whose stencils meet the box (contact.overlap_box) scatter."""
     p = cuda.grid(1)
     if p < particle_x.shape[0] and not d_stencil_off_box(particle_x, p, origin, inv_dx, box):
@@ -224,7 +224,7 @@ def surface_kernel(particle_x, particle_mass, particle_crack, origin, inv_dx, bo
         gy = cuda.local.array(4, float64)
         gz = cuda.local.array(4, float64)
         d_surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, grid_surface, wx, wy, wz, gx, gy,
-                     gz, no_owner, no_rows, no_rows, no_piece, 0.0, 0)
+                     gz, no_owner, no_rows, no_rows, no_piece, 0.0, no_box, 0)
 
 
 @cuda.jit
@@ -259,7 +259,7 @@ def add_stats(p, s, particle_x, stats):
 
 @cuda.jit
 def g2p_kernel(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip, particle_crack,
-               particle_x, particle_v, particle_C, stats, no_owner, no_rows, no_piece):
+               particle_x, particle_v, particle_C, stats, no_owner, no_rows, no_piece, no_box):
     p = cuda.grid(1)
     if p < particle_x.shape[0]:
         wx = cuda.local.array(4, float64)
@@ -269,13 +269,13 @@ def g2p_kernel(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocit
         nrm = cuda.local.array(3, float64)
         s = d_g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip,
                      particle_crack, particle_x, particle_v, particle_C, wx, wy, wz, v, nrm, grid, no_owner, no_rows,
-                     no_rows, no_piece, 0.0)
+                     no_rows, no_piece, 0.0, no_box)
         add_stats(p, s, particle_x, stats)
 
 
 @cuda.jit
 def advect_kernel(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack, particle_x, particle_v,
-                  stats, no_owner, no_rows, no_piece):
+                  stats, no_owner, no_rows, no_piece, no_box):
     p = cuda.grid(1)
     if p < particle_x.shape[0]:
         wx = cuda.local.array(4, float64)
@@ -283,7 +283,7 @@ def advect_kernel(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle
         wz = cuda.local.array(4, float64)
         nrm = cuda.local.array(3, float64)
         s = d_advect_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, particle_crack, particle_x,
-                        particle_v, wx, wy, wz, nrm, grid, no_owner, no_rows, no_rows, no_piece, 0.0)
+                        particle_v, wx, wy, wz, nrm, grid, no_owner, no_rows, no_rows, no_piece, 0.0, no_box)
         add_stats(p, s, particle_x, stats)
 
 
@@ -389,7 +389,7 @@ class CudaBackend:
         self.dev_stats = cuda.to_device(self.stats)
         # stand-ins for the crack fields' arrays (contact.cracks: separate runs on the CPU only)
         self.unsplit = (cuda.to_device(np.zeros((0, 0, 0), np.int64)), cuda.to_device(np.zeros((0, 3))),
-                        cuda.to_device(np.zeros(0, np.int64)))
+                        cuda.to_device(np.zeros(0, np.int64)), cuda.to_device(np.zeros(6, np.int64)))
         self.solver = solver
 
     def sync(self, state):
