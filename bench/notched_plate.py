@@ -18,13 +18,13 @@ from pdmpm_cli.study.fracture import GRIP, damage_band, large_pieces, plate_scen
 from pdmpm_cli.study.sim import Sim
 
 COLUMNS = ("cell [m]", "h [m]", "particles", "threshold", "time [s]", "large pieces", "damaged", "at grips",
-           "reach [m]",
-           "band p50 [h]", "band p90 [h]", "band max [h]", "band p90 [m]", "run [s]")
+           "along the notch", "reach [m]", "band p50 [h]", "band p90 [h]", "band max [h]", "band p90 [m]", "run [s]")
+NOTCH = 0.12  # plate_scene's notch length [m]
 
 
 def run(cell: float, energy: float, resistance: float | None, until: float, cracks: str) -> list[str]:
     t0 = time.perf_counter()
-    scene = plate_scene(cell, energy, duration=until)
+    scene = plate_scene(cell, energy, notch=NOTCH, duration=until)
     if resistance is not None:
         scene["bodies"][0]["fracture"]["damage_resistance"] = resistance
     scene["contact"] = {"cracks": cracks}
@@ -35,11 +35,12 @@ def run(cell: float, energy: float, resistance: float | None, until: float, crac
         if state.bonds_cut and large_pieces(state, model) >= 2:
             break
     size = model.rest_x[:, 1].max() - model.rest_x[:, 1].min()
-    band = damage_band(model, state, grip=GRIP * size)
+    band = damage_band(model, state, grip=GRIP * size, notch=NOTCH)
     b = model.bodies[0]
     h = b.spacing
     return [f"{cell:g}", f"{h:g}", str(b.end - b.start), f"{b.fracture.threshold:.4g}", f"{state.time:.3f}",
-            str(large_pieces(state, model)), str(band["damaged"]), str(band["at_grips"]), f"{band['reach']:.3f}", f"{band['p50'] / h:.1f}",
+            str(large_pieces(state, model)), str(band["damaged"]), str(band["at_grips"]), str(band["at_faces"]),
+            f"{band['reach']:.3f}", f"{band['p50'] / h:.1f}",
             f"{band['p90'] / h:.1f}", f"{band['max'] / h:.1f}", f"{band['p90']:.3f}", f"{time.perf_counter() - t0:.0f}"]
 
 

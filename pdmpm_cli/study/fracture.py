@@ -242,10 +242,11 @@ def plate_scene(cell: float, energy: float, size: float = 0.48, thickness: float
     }
 
 
-def damage_band(model, state, body: int = 0, grip: float = 0.0) -> dict:
+def damage_band(model, state, body: int = 0, grip: float = 0.0, notch: float = 0.0) -> dict:
     """Where a mode-I crack's damage lies, among the particles more than `grip` + a horizon from the top and bottom
     faces (damage at the grips' edges is counted apart, as `at_grips`): the damaged particles' rest distance from
-    the notch's plane (y) as percentiles 50 / 90 / 100 [m], and how far in x the damage reached [m]."""
+    the notch's plane (y) as percentiles 50 / 90 / 100 [m], how far in x the damage reached [m], and how many lie
+    along the notch's faces, more than a horizon behind its tip (`notch` long from the left edge)."""
     b = model.bodies[body]
     x0 = model.rest_x[b.start:b.end]
     lo, hi = x0[:, 1].min(), x0[:, 1].max()
@@ -253,7 +254,8 @@ def damage_band(model, state, body: int = 0, grip: float = 0.0) -> dict:
     damaged = state.particle_damage[b.start:b.end] > 0
     inner = np.abs(x0[:, 1] - mid) < 0.5 * (hi - lo) - grip - b.horizon
     hit = damaged & inner
-    out = {"damaged": int(hit.sum()), "at_grips": int((damaged & ~inner).sum())}
+    out = {"damaged": int(hit.sum()), "at_grips": int((damaged & ~inner).sum()),
+           "at_faces": int((hit & (x0[:, 0] < x0[:, 0].min() + notch - b.horizon)).sum())}
     if not hit.any():
         return out | {"p50": 0.0, "p90": 0.0, "max": 0.0, "reach": 0.0}
     p50, p90, top = np.percentile(np.abs(x0[hit, 1] - mid), [50, 90, 100])
