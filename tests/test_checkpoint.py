@@ -292,3 +292,25 @@ def test_plastic_run_resumes_bitwise_with_its_reverse_bonds(scene, tmp_path, mon
                     *[a for item in plastic for a in ("--set", item)])
     assert code == 0, err
     assert_same_frames(reference, out)
+
+
+def test_cracking_run_resumes_bitwise_with_its_crack_fields(scene, tmp_path, monkeypatch, capsys):
+    """A block that cracks on landing, with crack fields (contact.cracks auto): the checkpoint carries the broken
+    bonds, the resumed run rebuilds the crack directions, pieces and dust from them, and ends on the uninterrupted
+    run's frames."""
+    cracking = [*LONG, "bodies.0.fracture.threshold=0.002"]
+    reference = tmp_path / "reference"
+    simulate(prepare(scene, cracking), reference, overwrite=True)
+    out = tmp_path / "run"
+    advance = Solver.advance
+    monkeypatch.setattr(Solver, "advance", stopping_after(8))
+    with pytest.raises(KeyboardInterrupt):
+        simulate(prepare(scene, cracking), out, overwrite=True)
+    monkeypatch.setattr(Solver, "advance", advance)
+    ckpt = latest(out)
+    assert (ckpt.arrays["bond_active"] == 0).any()
+    assert prepare(scene, cracking).model.crack_bodies == (0,)
+    code, err = cli(monkeypatch, capsys, "run", scene, "--resume", out, "--quiet",
+                    *[a for item in cracking for a in ("--set", item)])
+    assert code == 0, err
+    assert_same_frames(reference, out)
