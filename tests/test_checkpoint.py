@@ -274,24 +274,31 @@ def test_checkpoints_keep_the_thread_count_the_run_started_with(interrupted, tmp
     assert latest(out).frame == 12 and latest(out).attrs["threads"] == 7
 
 
-def test_plastic_run_resumes_bitwise_with_its_reverse_bonds(scene, tmp_path, monkeypatch, capsys):
-    """A yielding plastic block: the checkpoint carries bond_reverse with e_p (format 4), and the resumed run ends on
-    the uninterrupted run's frames."""
-    plastic = [*LONG, "bodies.0.material.model=plastic", "bodies.0.material.yield_stress=300"]
+def interrupt_and_resume(scene, overrides, tmp_path, monkeypatch, capsys):
+    """The uninterrupted run with `overrides`, and the same stopped after frame 8 then resumed through the CLI; the
+    checkpoint it resumed from."""
     reference = tmp_path / "reference"
-    simulate(prepare(scene, plastic), reference, overwrite=True)
+    simulate(prepare(scene, overrides), reference, overwrite=True)
     out = tmp_path / "run"
     advance = Solver.advance
     monkeypatch.setattr(Solver, "advance", stopping_after(8))
     with pytest.raises(KeyboardInterrupt):
-        simulate(prepare(scene, plastic), out, overwrite=True)
+        simulate(prepare(scene, overrides), out, overwrite=True)
     monkeypatch.setattr(Solver, "advance", advance)
     ckpt = latest(out)
-    assert "bond_reverse" in ckpt.arrays and np.count_nonzero(ckpt.arrays["bond_ep"]) > 0
     code, err = cli(monkeypatch, capsys, "run", scene, "--resume", out, "--quiet",
-                    *[a for item in plastic for a in ("--set", item)])
+                    *[a for item in overrides for a in ("--set", item)])
     assert code == 0, err
     assert_same_frames(reference, out)
+    return ckpt
+
+
+def test_plastic_run_resumes_bitwise_with_its_reverse_bonds(scene, tmp_path, monkeypatch, capsys):
+    """A yielding plastic block: the checkpoint carries bond_reverse with e_p (format 4), and the resumed run ends on
+    the uninterrupted run's frames."""
+    plastic = [*LONG, "bodies.0.material.model=plastic", "bodies.0.material.yield_stress=300"]
+    ckpt = interrupt_and_resume(scene, plastic, tmp_path, monkeypatch, capsys)
+    assert "bond_reverse" in ckpt.arrays and np.count_nonzero(ckpt.arrays["bond_ep"]) > 0
 
 
 def test_cracking_run_resumes_bitwise_with_its_crack_fields(scene, tmp_path, monkeypatch, capsys):
@@ -299,18 +306,6 @@ def test_cracking_run_resumes_bitwise_with_its_crack_fields(scene, tmp_path, mon
     bonds, the resumed run rebuilds the crack directions, pieces and dust from them, and ends on the uninterrupted
     run's frames."""
     cracking = [*LONG, "bodies.0.fracture.threshold=0.002"]
-    reference = tmp_path / "reference"
-    simulate(prepare(scene, cracking), reference, overwrite=True)
-    out = tmp_path / "run"
-    advance = Solver.advance
-    monkeypatch.setattr(Solver, "advance", stopping_after(8))
-    with pytest.raises(KeyboardInterrupt):
-        simulate(prepare(scene, cracking), out, overwrite=True)
-    monkeypatch.setattr(Solver, "advance", advance)
-    ckpt = latest(out)
-    assert (ckpt.arrays["bond_active"] == 0).any()
     assert prepare(scene, cracking).model.crack_bodies == (0,)
-    code, err = cli(monkeypatch, capsys, "run", scene, "--resume", out, "--quiet",
-                    *[a for item in cracking for a in ("--set", item)])
-    assert code == 0, err
-    assert_same_frames(reference, out)
+    ckpt = interrupt_and_resume(scene, cracking, tmp_path, monkeypatch, capsys)
+    assert (ckpt.arrays["bond_active"] == 0).any()
