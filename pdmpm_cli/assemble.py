@@ -102,10 +102,11 @@ def body_params(scene: Scene, disc: Discretization) -> tuple[BodyParams, ...]:
 
 def crack_bodies(scene: Scene) -> tuple[int, ...]:
     """Bodies whose cracks and notches get a second grid field (contact.cracks, engine/crack.py): those with
-    `fracture` or `cutouts`. auto takes them where each body has its own field (or there is one body) on the CPU;
+    `fracture` or `cutouts`, of a material that does not flow (a liquid's families are rebuilt, so its reference
+    positions say nothing of where a notch now is). auto takes them where each body has its own field (or there is one body) on the CPU;
     separate asked of bodies sharing one field, or on the GPU, is refused."""
-    out = tuple(i for i, b in enumerate(scene.bodies)
-                if b.fracture is not None or getattr(b.geometry, "cutouts", None))
+    out = tuple(i for i, b in enumerate(scene.bodies) if not MATERIALS[b.material.model].flows
+                and (b.fracture is not None or getattr(b.geometry, "cutouts", None)))
     shared = len(scene.bodies) > 1 and scene.contact.mode == "shared"
     gpu = scene.simulation.backend != "cpu"
     if scene.contact.cracks == "shared" or not out:

@@ -582,7 +582,8 @@ def volume_ratio(model, state) -> np.ndarray:
 
 KIND = MaterialKind(
     name="viscoelastic", schema=Schema, params=params, forces=bonds, constants=constants, energy=energy,
-    before_forces=volume_pressure, after_forces=families, after_move=shift, moves=lambda p: p.shift_distance > 0.0,
+    before_forces=volume_pressure, after_forces=families, flows=True, after_move=shift,
+    moves=lambda p: p.shift_distance > 0.0,
     start=init_state, born=born, with_flow_speed=with_flow_speed,
     outputs={"particle_J": volume_ratio},
     fields=(
