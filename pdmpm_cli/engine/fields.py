@@ -57,7 +57,7 @@ CRACK_SIDES = (
     Field("particle_crack_s", PARTICLE, transient=True, doc="length of the summed X_q - X_p of its broken and cut "
           "bonds [m]: the node's owner is the particle with the largest"),
     Field("particle_dust", PARTICLE, dtype="u1", transient=True,
-          doc="1: every bond broken, integrated off the grid as the crack particles of other bodies are"),
+          doc="1: a crack particle of a small piece (dust, chips), integrated off the grid as on one field"),
     Field("particle_piece", PARTICLE, dtype="i8", transient=True,
           doc="the piece of its body the particle belongs to (connected over intact bonds)"),
     Field("grid_owner", GRID, dtype="i8", fill=-1, transient=True,

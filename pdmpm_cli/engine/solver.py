@@ -208,27 +208,27 @@ class Solver:
                                        state.particle_lmax, state.particle_bmax)
             if cut:
                 damage(state.bond_start, state.bond_active, state.particle_damage, state.particle_crack)
-                self.crack_index = self.off_grid(state)
                 self.crack_sides(state)
+                self.crack_index = self.off_grid(state)
         if cut:
             state.bonds_cut += cut
             be.crack_particles_changed(self, state)
 
     def off_grid(self, state: State) -> np.ndarray:
         """The crack particles that leave the grid for their own integrator (section 6), in order: all of them but
-        those of crack-field bodies that still hold a bond, which stay on the grid on their side's field
-        (engine/crack.py); dust, with every bond broken, has no side and flies on its own."""
+        those of crack-field bodies that belong to a large piece, which stay on the grid on their side's field
+        (engine/crack.py); `crack_sides` marks the others (dust and chips) in particle_dust."""
         crack = state.particle_crack.astype(bool)
         for i in self.model.crack_bodies:
             b = self.model.bodies[i]
-            crack[b.start:b.end] &= state.particle_damage[b.start:b.end] >= 1.0
-            state.particle_dust[b.start:b.end] = crack[b.start:b.end]
+            crack[b.start:b.end] = state.particle_dust[b.start:b.end] != 0
         return np.flatnonzero(crack).astype(np.int64)
 
     def crack_sides(self, state: State):
         """Each crack body's pieces and crack directions from its broken and cut bonds (engine/crack.py), on the host
         State. Particles of pieces under PIECE_MIN of the body split no node (debris would put both large pieces on
-        one side)."""
+        one side), and their crack particles, dust and chips, fly off the grid on the crack particles' own
+        integrator, kept inside the domain as the paper's are (particle_dust)."""
         m = self.model
         if not m.crack_bodies:
             return
@@ -241,8 +241,10 @@ class Solver:
                           state.particle_crack_n, state.particle_crack_s)
             label = pieces(state.bond_start, state.bond_nbr, intact, b.start, b.end)
             state.particle_piece[b.start:b.end] = label
-            size = np.bincount(label)
-            state.particle_crack_s[b.start:b.end][size[label] < PIECE_MIN * (b.end - b.start)] = 0.0
+            small = np.bincount(label)[label] < PIECE_MIN * (b.end - b.start)
+            state.particle_crack_s[b.start:b.end][small] = 0.0
+            if state.has("particle_crack"):
+                state.particle_dust[b.start:b.end] = small & (state.particle_crack[b.start:b.end] != 0)
 
     @contextmanager
     def timed(self, name: str):
@@ -304,8 +306,8 @@ class Solver:
         """Step this State from now on (after start, or after a checkpoint was restored into it): the backend
         takes its arrays (the CUDA backend uploads them)."""
         self.state = state
-        self.crack_index = self.off_grid(state) if state.has("particle_crack") else np.zeros(0, np.int64)
         self.crack_sides(state)
+        self.crack_index = self.off_grid(state) if state.has("particle_crack") else np.zeros(0, np.int64)
         self.backend.start(self, state)
 
     def sync(self, state: State) -> State:

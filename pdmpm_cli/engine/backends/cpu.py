@@ -58,8 +58,8 @@ class CpuBackend:
 
     @staticmethod
     def cracked(solver, state, body: int, s: int, e: int) -> np.ndarray:
-        """The rows of the particles the transfers skip for a body: a crack body's dust (its other crack particles
-        stay on the grid, on their side's field: engine/crack.py), any other body's crack particles."""
+        """The rows of the particles the transfers skip for a body: a crack body's dust and chips (its other crack
+        particles stay on the grid, on their side's field: engine/crack.py), any other body's crack particles."""
         return state.particle_dust[s:e] if body in solver.model.crack_bodies else state.particle_crack[s:e]
 
     def sides(self, solver, state, body: int) -> tuple:
