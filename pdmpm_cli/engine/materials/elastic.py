@@ -152,8 +152,8 @@ def elastic_forces(start, end, lam, mu, particle_x, rest_x, particle_volume, bon
     from q, so the pair's forces are equal and opposite to the bit (families are symmetric: build_families stores
     both directions, cuts and fracture remove both). Thread t takes a fixed particle range and scatters into
     force_private[t] only: no races, and a fixed order. Per particle, a gather loop fills the scratch rows
-    (`gather_pairs`), a loop without gathers or sums evaluates the pairs (the loop the compiler can vectorise), and
-    a third loop scatters -G onto the q."""
+    (`gather_pairs`), a loop without gathers or sums evaluates the pairs (the loop the compiler vectorises: packed
+    square roots and divisions), and a third sums G onto p in bond order and scatters -G onto the q."""
     has_active, has_crack = bond_active.shape[0] > 0, particle_crack.shape[0] > 0
     has_ep, has_mu = bond_ep.shape[0] > 0, mu > 0.0
     nt, n = force_private.shape[0], end - start
@@ -171,16 +171,15 @@ def elastic_forces(start, end, lam, mu, particle_x, rest_x, particle_volume, bon
                              bond_wv, bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef,
                              particle_Fbar, s, nbr)
             cp, vp = particle_coef[p], particle_volume[p]
+            for k in range(m):
+                pair[0, k], pair[1, k], pair[2, k] = pair_force(
+                    has_mu, lam, mu, cp, s[11, k], s[9, k] * s[10, k] * vp, s[10, k], s[12, k], s[0, k], s[1, k],
+                    s[2, k], s[3, k], s[4, k], s[5, k], s[6, k], s[7, k], s[8, k])
             f0 = f1 = f2 = 0.0
             for k in range(m):
-                g0, g1, g2 = pair_force(has_mu, lam, mu, cp, s[11, k], s[9, k] * s[10, k] * vp, s[10, k], s[12, k],
-                                        s[0, k], s[1, k], s[2, k], s[3, k], s[4, k], s[5, k], s[6, k], s[7, k],
-                                        s[8, k])
-                pair[0, k], pair[1, k], pair[2, k] = g0, g1, g2
-                f0 += g0
-                f1 += g1
-                f2 += g2
-            for k in range(m):
+                f0 += pair[0, k]
+                f1 += pair[1, k]
+                f2 += pair[2, k]
                 q = nbr[k]
                 f[q, 0] -= pair[0, k]
                 f[q, 1] -= pair[1, k]
