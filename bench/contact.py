@@ -8,8 +8,10 @@ Usage: python bench/contact.py [spheres|rebound|sliding|passing|cost|all] [--rad
   penalty alone at each contact.stiffness; `--step 0.4 0.8` forces the step to those multiples of dx / c (the
   number of transfers, against APIC's loss).
 - rebound: an elastic ball (radius in spacings) dropped 0.1 m on a rigid, frictionless floor collider: rebound
-  height over drop height (e^2; 1 for an elastic impact), with APIC (simulation.flip 0) and FLIP shares.
-- sliding: a block sliding on an elastic slab with friction 0.3 and 0: deceleration against mu g (both models).
+  height over drop height (e^2; 1 for an elastic impact), with APIC (simulation.flip 0) and FLIP shares;
+  `--response penalty` the floor's penalty response instead (APIC only) at each `--stiffness` (default 1).
+- sliding: a block sliding on an elastic slab with friction 0.3 and 0: deceleration against mu g (both models);
+  then a block sliding on a penalty floor collider (deceleration, and how deep its particles sank).
 - passing: two blocks half a cell apart, one sliding past the other: momentum the resting one picks up.
 - cost: time per step of the sphere pair with one field per body against one shared field, by phase.
 """
@@ -45,14 +47,16 @@ def spheres(radii, closing: float, stiffnesses, steps):
                   f"{o['apart']:+.2f} | {o['seconds']:.0f} |", flush=True)
 
 
-def rebound(radii, flips):
-    print("| radius [spacings] | simulation.flip | particles | steps | rebound / drop height | wall [s] |")
-    print("|---|---|---|---|---|---|")
+def rebound(radii, flips, response="projection", stiffnesses=()):
+    print("| radius [spacings] | simulation.flip | floor response | stiffness | particles | steps | rebound / drop "
+          "height | wall [s] |")
+    print("|---|---|---|---|---|---|---|---|")
+    runs = [(f, None) for f in flips] if response == "projection" else [(0.0, k) for k in (stiffnesses or [1.0])]
     for r in radii:
-        for flip in flips:
-            o = C.ball_drop(r, flip=flip)
-            print(f"| {r:g} | {flip:g} | {o['particles']} | {o['steps']} | {o['rebound']:.3f} | {o['seconds']:.0f} |",
-                  flush=True)
+        for flip, k in runs:
+            o = C.ball_drop(r, flip=flip, response=response, stiffness=k)
+            print(f"| {r:g} | {flip:g} | {response} | {'-' if k is None else f'{k:g}'} | {o['particles']} | "
+                  f"{o['steps']} | {o['rebound']:.3f} | {o['seconds']:.0f} |", flush=True)
 
 
 def sliding():
@@ -64,6 +68,14 @@ def sliding():
             ratio = f"{o['deceleration'] / (mu * C.G):.4f}" if mu else "-"
             print(f"| {mode} | {mu:g} | {o['deceleration']:.4f} | {ratio} | "
                   f"{o['v'][-1]:.5f} |", flush=True)
+    print("\nOn a penalty floor collider:\n")
+    print("| friction | deceleration [m/s^2] | / (mu g) | speed at 0.15 s / v0 | deepest particle below the floor "
+          "[cells] |")
+    print("|---|---|---|---|---|")
+    for mu in (0.3, 0.0):
+        o = C.floor_slide(mu)
+        ratio = f"{o['deceleration'] / (mu * C.G):.4f}" if mu else "-"
+        print(f"| {mu:g} | {o['deceleration']:.4f} | {ratio} | {o['v'][-1]:.5f} | {o['deepest']:.3f} |", flush=True)
 
 
 def passing():
@@ -106,6 +118,8 @@ def main():
     ap.add_argument("--closing", type=float, default=0.05, help="closing speed over the P-wave speed (spheres)")
     ap.add_argument("--stiffness", type=float, nargs="*", default=[],
                     help="penalty contact.stiffness values (spheres; none: the three models at their defaults)")
+    ap.add_argument("--response", choices=["projection", "penalty"], default="projection",
+                    help="rebound: the floor collider's response")
     ap.add_argument("--step", type=float, nargs="+", default=[None],
                     help="spheres: force the step to these multiples of dx / c (default: the Plan's)")
     args = ap.parse_args()
@@ -113,7 +127,7 @@ def main():
     if args.what in ("spheres", "all"):
         spheres(args.radius, args.closing, args.stiffness, args.step)
     if args.what in ("rebound", "all"):
-        rebound(args.radius, args.flip)
+        rebound(args.radius, args.flip, args.response, args.stiffness)
     if args.what in ("sliding", "all"):
         sliding()
     if args.what in ("passing", "all"):

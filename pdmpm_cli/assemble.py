@@ -6,7 +6,7 @@ import math
 import numpy as np
 
 from pdmpm_cli.engine.bonds import calibration_coefficients, reference_family_terms
-from pdmpm_cli.engine.colliders import BOUNDARY_CODES, BOX, CYLINDER, MESH, PLANE, ROW, SPHERE
+from pdmpm_cli.engine.colliders import BOUNDARY_CODES, BOX, CYLINDER, MESH, PENALTY_BACKSTOP, PLANE, ROW, SPHERE
 from pdmpm_cli.engine.fracture import critical_stretch
 from pdmpm_cli.discretize import Discretization
 from pdmpm_cli.engine.emitter import Emitter
@@ -21,9 +21,17 @@ def _unit(v):
     return v / np.linalg.norm(v)
 
 
-def collider_table(colliders, samples=None) -> np.ndarray:
+def penalized(collider, flip: float = 0.0) -> bool:
+    """Whether a collider takes the penalty response: asked for, or `auto` on a separate boundary with APIC."""
+    response = getattr(collider, "response", "projection")
+    return response == "penalty" or (response == "auto" and collider.boundary == "separate" and flip == 0.0)
+
+
+def collider_table(colliders, samples=None, dx: float = 0.0, flip: float = 0.0) -> np.ndarray:
     """Pack validated scene colliders into the table the kernels read (layout: engine.colliders): one header row
-    each, and after a mesh collider's its signed distance samples (`samples`: collider index -> DistanceSamples)."""
+    each, and after a mesh collider's its signed distance samples (`samples`: collider index -> DistanceSamples).
+    A penalty collider (`penalized` with the scene's FLIP share) gets its stiffness and a backstop depth of
+    PENALTY_BACKSTOP cells of size `dx` [m]."""
     rows = []
     for i, c in enumerate(colliders):
         row = np.zeros(ROW)
@@ -33,6 +41,8 @@ def collider_table(colliders, samples=None) -> np.ndarray:
         row[10:13] = c.velocity
         row[13] = BOUNDARY_CODES[c.boundary]
         row[14] = c.friction
+        if penalized(c, flip):
+            row[23], row[24] = PENALTY_BACKSTOP * dx, c.stiffness
         if c.type == "plane":
             row[0], row[1:4], row[4:7] = PLANE, c.point, _unit(c.normal)
         elif c.type == "box":
@@ -165,6 +175,20 @@ def contact_stiffness(scene: Scene, bodies, cracks: tuple[int, ...] = ()) -> np.
     return np.where(sides, -1.0, scene.contact.stiffness * np.maximum.outer(c, c) ** 2)
 
 
+def collider_penalty(scene: Scene, bodies) -> np.ndarray:
+    """(bodies,) c^2 / dx^2 of each body (c its P-wave speed) [1/s^2], which a penalty collider's stiffness scales
+    (engine.colliders.penalty_at); (0,) when no collider takes the penalty."""
+    flip = scene.simulation.flip
+    if flip > 0.0 and any(c.response == "penalty" for c in scene.colliders):
+        raise SceneValueError("a penalty collider runs with APIC only (simulation.flip 0), as the penalty contact "
+                              "between bodies does; set simulation.flip: 0 or the collider's response: projection "
+                              "(auto takes the projection with a FLIP share)", ("simulation", "flip"))
+    if not any(penalized(c, flip) for c in scene.colliders):
+        return np.zeros(0)
+    c = np.array([MATERIALS[b.kind].constants(b.params)["wave_speed"] for b in bodies])
+    return c**2 / scene.grid.cell_size**2
+
+
 def emitter(scene: Scene, disc: Discretization, bodies) -> Emitter | None:
     """The last body's emitter: its layer (the body's lattice points inside the nozzle), the interval N h^3 / rate
     between layers and how many are due before the run ends. A rate the nozzle cannot pass at the given speed (a
@@ -211,7 +235,8 @@ def build_model(scene: Scene, disc: Discretization) -> Model:
         particle_coef=calibration_coefficients(omega, disc.body, disc.body_horizon), particle_omega=omega,
         pin_mask=disc.pin_mask, pin_velocity=disc.pin_velocity, pin_stop=disc.pin_stop,
         bodies=bodies, emitter=emitter(scene, disc, bodies),
-        colliders=collider_table(scene.colliders, disc.collider_samples), gravity=np.asarray(scene.gravity, dtype=np.float64),
+        colliders=collider_table(scene.colliders, disc.collider_samples, g.cell_size, scene.simulation.flip),
+        collider_penalty=collider_penalty(scene, bodies), gravity=np.asarray(scene.gravity, dtype=np.float64),
         wind_velocity=np.asarray(scene.wind.velocity if scene.wind else (0.0, 0.0, 0.0), dtype=np.float64),
         wind_drag=scene.wind.drag if scene.wind else 0.0,
         origin=lo, dx=g.cell_size, grid_shape=tuple(int(c) + 1 for c in cells),

@@ -54,7 +54,10 @@ BASE = {
         "material": {"model": "elastic", "density": 1000.0, "lam": 1e5, "mu": 1e5},
     }],
 }
-FLOOR = {"type": "plane", "point": [0, 0.45, 0], "normal": [0, 1, 0]}  # 0.05 m (a cell) below the block
+# 0.05 m (a cell) below the block; the projection, whose tunnelling bound the impact cases probe (a penalty
+# floor bounces a block hitting it at several wave speeds back at that speed, into the domain's top wall)
+FLOOR = {"type": "plane", "point": [0, 0.45, 0], "normal": [0, 1, 0], "response": "projection"}
+BOUNCY = {**FLOOR, "response": "penalty"}
 
 
 @dataclass(frozen=True)
@@ -206,6 +209,13 @@ def discretisation_cases(vib, gravity) -> list[Case]:
     out.append(Case("resting_floor", "boundary", "on the floor, gravity", "a body touching a collider from the start",
                     {"bodies": [_body()], "colliders": [{**FLOOR, "point": [0, 0.5, 0]}], "gravity": gravity},
                     steps=1000))
+    out.append(Case("resting_penalty", "boundary", "on a penalty floor, gravity", "a body set down on the elastic "
+                    "push of a penalty collider", {"bodies": [_body()], "colliders": [{**BOUNCY, "point": [0, 0.5, 0]}],
+                                                   "gravity": gravity}, steps=1000))
+    out.append(Case("bounce_penalty", "boundary", "penalty floor, 0.05 dx/dt", "a block bounces off a penalty floor",
+                    {"colliders": [BOUNCY]}, impact=0.05))
+    out.append(Case("bounce_penalty_stiff", "boundary", "penalty stiffness 4, 0.05 dx/dt", "the stiffest penalty "
+                    "push", {"colliders": [{**BOUNCY, "stiffness": 4.0}]}, impact=0.05))
     liquid = {"model": "viscoelastic", "density": 1000.0, "lam": 5e3, "mu": 500.0, "relaxation_time": 0.05,
               "relaxing_fraction": 1.0, "break_stretch": 0.03}
     blob = {"mode": "cloud", "spacing": 0.0125, "shape": {"type": "sphere", "center": [0.6, 0.75, 0.6],

@@ -159,6 +159,43 @@ def sliding(friction: float, v0: float = 1.0, duration: float = 0.15, settle: fl
     return {"t": t, "v": v, "deceleration": float(slope), "steps": sim.state.step}
 
 
+def floor_slide(friction: float, v0: float = 1.0, duration: float = 0.15, settle: float = 0.05,
+                cell: float = 0.02) -> dict:
+    """A block (4 x 2 x 4 cells, lattice) set down touching a penalty floor (a plane collider, response penalty,
+    Coulomb `friction`) and sliding along it at v0, under gravity. Returns its x velocity over time, the
+    least-squares deceleration after `settle` s while it still moves [m/s^2], and the deepest any particle centre
+    went below the floor over the run [cells]."""
+    h = cell / 2
+    block = (4 * cell, 2 * cell, 4 * cell)
+    floor = 4 * cell
+    width = (30 * cell, floor + block[1] + 8 * cell, block[2] + 8 * cell)
+    sim = Sim({
+        "simulation": {"duration": duration, "fps": 100},
+        "grid": {"cell_size": cell, "domain": {"min": [0, 0, 0], "max": list(width)}},
+        "gravity": [0, -G, 0],
+        "colliders": [{"type": "plane", "point": [0, floor, 0], "normal": [0, 1, 0], "boundary": "separate",
+                       "friction": friction, "response": "penalty"}],
+        "bodies": [{"name": "block", "velocity": [v0, 0, 0], "material": elastic(),
+                    "geometry": {"mode": "cloud", "sampling": "lattice", "spacing": h, "shape": {
+                        "type": "box", "center": [6 * cell, floor + block[1] / 2, width[2] / 2],
+                        "size": list(block)}}}],
+    })
+    t, v, deepest = [0.0], [float(body_velocity(sim, 0)[0])], [0.0]
+
+    def watch(state, dt):
+        deepest[0] = max(deepest[0], (floor - float(state.particle_x[:, 1].min())) / cell)
+
+    for frame in range(1, int(round(duration * 100)) + 1):
+        sim.advance(frame / 100, watch)
+        t.append(sim.state.time)
+        v.append(float(body_velocity(sim, 0)[0]))
+    t, v = np.array(t), np.array(v)
+    use = (t >= settle) & (v > 0.05 * v0)
+    slope = -np.polyfit(t[use], v[use], 1)[0] if use.sum() >= 3 else float("nan")
+    return {"t": t, "v": v, "deceleration": float(slope), "deepest": deepest[0],
+            "vy": float(np.abs(sim.state.particle_v[:, 1]).max())}
+
+
 def passing(mode: str = "separate", friction: float = 0.5, v0: float = 0.5, duration: float = 0.05) -> dict:
     """Two blocks (6 x 6 x 6 cells) half a cell apart across y, one at rest and one moving at v0 along x (parallel
     to the gap), without gravity: the momentum the resting block picks up over the moving one's m v0."""
@@ -188,9 +225,11 @@ def passing(mode: str = "separate", friction: float = 0.5, v0: float = 0.5, dura
             / mv, "speed": float(body_velocity(sim, 1)[0]) / v0}
 
 
-def ball_drop(spacings: float = 5, drop: float = 0.1, radius: float = 0.05, E: float = 1e6, flip: float = 0.0) -> dict:
+def ball_drop(spacings: float = 5, drop: float = 0.1, radius: float = 0.05, E: float = 1e6, flip: float = 0.0,
+              response: str = "projection", stiffness: float | None = None) -> dict:
     """An elastic ball of `spacings` particle spacings in radius (spacing half a cell) released with its lowest
-    point `drop` [m] above a rigid, frictionless floor collider (a plane, boundary separate), under gravity.
+    point `drop` [m] above a rigid, frictionless floor collider (a plane, boundary separate, the collider's
+    `response`, and its `stiffness`: None the default), under gravity.
     Rebound height over drop height is e^2 (coefficient of restitution e; an elastic impact: 1). Returns:
     rebound, the highest the ball's lowest point rises after the impact over `drop`; contact, the impact's duration
     [s] (Hertz against a rigid plane: 2.87 (m^2 / (R E*^2 v))^(1/5), E* = E / (1 - nu^2)); hertz, that prediction."""
@@ -208,7 +247,8 @@ def ball_drop(spacings: float = 5, drop: float = 0.1, radius: float = 0.05, E: f
                                                "max": [radius + pad, y0 + radius + pad, radius + pad]}},
         "gravity": [0, -G, 0],
         "colliders": [{"type": "plane", "point": [0, floor, 0], "normal": [0, 1, 0], "boundary": "separate",
-                       "friction": 0.0}],
+                       "friction": 0.0, "response": response,
+                       **({} if stiffness is None else {"stiffness": stiffness})}],
         "bodies": [{"name": "ball", "geometry": {"mode": "cloud", "spacing": h,
                                                   "shape": {"type": "sphere", "center": [0, y0, 0], "radius": radius}},
                     "material": elastic(E)}],

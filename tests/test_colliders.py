@@ -63,15 +63,18 @@ def test_response(boundary, friction, v, expected):
 
 
 def test_body_rests_on_floor_and_moving_wall_pushes_it(sim_factory):
-    """A block under gravity settles on a plane (no penetration); a moving box collider then pushes it."""
+    """A block under gravity settles on a plane (no penetration); a moving box collider then pushes it. Both take
+    the projection (an inelastic impact, so the dropped block settles at once; the default penalty bounces it:
+    tests/test_contact.py)."""
     sim = sim_factory({"gravity": [0, -9.81, 0], "simulation": {"duration": 1.0},
                        "bodies": [{**sim_factory().scene.bodies[0].model_dump(),
                                    "geometry": {"mode": "cloud", "sampling": "jittered",
                                                 "shape": {"type": "box", "center": [0.5, 0.4, 0.5],
                                                           "size": [0.2, 0.2, 0.2]}}}],
-                       "colliders": [{"type": "plane", "point": [0, 0.25, 0], "normal": [0, 1, 0], "friction": 0.0},
+                       "colliders": [{"type": "plane", "point": [0, 0.25, 0], "normal": [0, 1, 0], "friction": 0.0,
+                                      "response": "projection"},
                                      {"type": "box", "center": [0.05, 0.4, 0.5], "size": [0.1, 0.4, 0.4],
-                                      "velocity": [0.4, 0, 0], "boundary": "separate"}]})
+                                      "velocity": [0.4, 0, 0], "boundary": "separate", "response": "projection"}]})
     sim.advance(0.5)
     assert sim.state.particle_x[:, 1].min() >= 0.25 - 1e-9
     assert np.abs(sim.state.particle_v[:, 1]).max() < 0.05  # settled

@@ -94,6 +94,46 @@ def test_ball_rebounds_to_80_percent_with_a_full_flip_share():
     assert o["rebound"] > 0.8
 
 
+def test_ball_rebounds_to_80_percent_off_a_penalty_floor():
+    """The same ball with APIC on a floor whose response is the penalty (an elastic push on the particles that touch
+    it, stiffness 1): 82 % of the drop height (measured 0.8195; the projection floor 22 %; bench/contact.py rebound
+    --response penalty)."""
+    o = C.ball_drop(5, response="penalty")
+    print(o)
+    assert o["rebound"] > 0.8
+
+
+@pytest.mark.parametrize("friction", [0.3, 0.0])
+def test_block_slides_on_a_penalty_floor_at_mu_g(friction):
+    """A block sliding on a penalty floor: Coulomb friction decelerates it at mu g (within 5 %; measured 1.003);
+    frictionless it keeps its speed (within 1 %); its particles do not sink below the floor (the push starts
+    half a spacing above it, where the material touches)."""
+    o = C.floor_slide(friction, duration=0.1)
+    print(friction, o["deceleration"], o["v"][-1], o["deepest"])
+    if friction:
+        assert o["deceleration"] == pytest.approx(friction * C.G, rel=0.05)
+    else:
+        assert o["v"][-1] == pytest.approx(1.0, rel=0.01) and abs(o["deceleration"]) < 0.01 * C.G
+    assert o["deepest"] < 0.05
+
+
+@pytest.mark.parametrize("change,key", [
+    ({"colliders": [{"type": "plane", "point": [0, 0.1, 0], "normal": [0, 1, 0], "boundary": "slip",
+                     "response": "penalty"}]}, "boundary: separate"),
+    ({"simulation": {"flip": 0.5},
+      "colliders": [{"type": "plane", "point": [0, 0.1, 0], "normal": [0, 1, 0], "response": "penalty"}]},
+     "simulation.flip"),
+])
+def test_penalty_collider_input_errors(sim_factory, change, key):
+    """A penalty collider that cannot work is refused on input, saying what to change."""
+    from pydantic import ValidationError
+
+    from pdmpm_cli.errors import InputError
+
+    with pytest.raises((InputError, ValidationError), match=key):
+        sim_factory(change)
+
+
 @pytest.mark.parametrize("mode", ["penalty", "projection"])
 @pytest.mark.parametrize("friction", [0.3, 0.0])
 def test_sliding_block_decelerates_at_mu_g(friction, mode):

@@ -5,7 +5,9 @@ objects and every kernel takes the one table:
   0 kind | 1-3 point/centre | 4-6 normal, box half-size or cylinder axis | 7 radius | 8 half height |
   9 sign (+1, or -1 inside-out) | 10-12 velocity | 13 boundary (0 sticky, 1 slip, 2 separate) | 14 friction |
   15 rows the collider spans (1, or 1 + its data rows) | 16-18 mesh: distance samples per axis |
-  19-21 mesh: first sample's position at time 0 [m] | 22 mesh: sample spacing [m]
+  19-21 mesh: first sample's position at time 0 [m] | 22 mesh: sample spacing [m] |
+  23 penalty response: the depth [m] below which the projection backs it up (0: the projection alone) |
+  24 penalty response: its stiffness k [-]
 A mesh collider's signed distances follow its header row by row, x slowest, ROW values to a row. The collider moves
 with constant velocity: its centre (or its samples) at time t is the position at 0 + velocity t.
 """
@@ -13,12 +15,15 @@ with constant velocity: its centre (or its samples) at time t is the position at
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
+
+from pdmpm_cli.engine.kernel import Kernel
 
 PLANE, BOX, SPHERE, CYLINDER, MESH = 0, 1, 2, 3, 4
 STICKY, SLIP, SEPARATE = 0, 1, 2
 BOUNDARY_CODES = {"sticky": STICKY, "slip": SLIP, "separate": SEPARATE}
-ROW = 23
+ROW = 25
+PENALTY_BACKSTOP = 2.0  # penalty colliders: nodes and particles deeper than this project as before [cells]
 
 
 def header_rows(table):
@@ -185,23 +190,70 @@ def respond(v, vc0, vc1, vc2, n, boundary, friction):
 
 @njit(cache=True)
 def collide_all(table, x0, x1, x2, t, v, n):
-    """Apply every collider whose level set is <= 0 at x to the velocity v (in place)."""
+    """Apply every collider whose level set is <= 0 at x (a penalty collider's: below its backstop depth) to the
+    velocity v (in place)."""
     c = 0
     while c < table.shape[0]:
         row = table[c]
-        if signed_distance(table, c, x0, x1, x2, t, n) <= 0.0:
+        if signed_distance(table, c, x0, x1, x2, t, n) <= -row[23]:
             respond(v, row[10], row[11], row[12], n, int(row[13]), row[14])
         c += int(row[15])
 
 
 @njit(cache=True)
 def push_out(table, x, t, n):
-    """Move point x (in place) out of any collider it penetrates, to the surface along the normal."""
+    """Move point x (in place) out of any collider it penetrates, to the surface along the normal (a penalty
+    collider's: to its backstop depth)."""
     c = 0
     while c < table.shape[0]:
-        phi = signed_distance(table, c, x[0], x[1], x[2], t, n)
+        phi = signed_distance(table, c, x[0], x[1], x[2], t, n) + table[c, 23]
         if phi < 0.0:
             x[0] -= phi * n[0]
             x[1] -= phi * n[1]
             x[2] -= phi * n[2]
         c += int(table[c, 15])
+
+
+@njit(cache=True)
+def penalty_at(p, table, t, dt, wave, skin, pin_mask, particle_x, particle_v, particle_mass, particle_force, n):
+    """Particle p against every penalty collider (table[c, 23] > 0): where its centre lies closer than `skin` (half
+    its spacing: its material touches) to the surface, an elastic force m_p k c^2 / dx^2 (skin - phi) along the
+    normal (k the collider's stiffness, `wave` = c^2 / dx^2 [1/s^2]), whether it approaches or leaves, so the work
+    comes back; Coulomb friction up to mu times it against the slip relative to the collider, at most what stops
+    the slip in dt -> particle_force. Pinned particles move as prescribed. Branches, not the builtin min, which
+    numba's CUDA target cannot compile."""
+    if pin_mask.shape[0] > 0 and pin_mask[p] != 0:
+        return
+    c = 0
+    while c < table.shape[0]:
+        row = table[c]
+        if row[23] > 0.0:
+            phi = signed_distance(table, c, particle_x[p, 0], particle_x[p, 1], particle_x[p, 2], t, n)
+            if phi < skin:
+                m = particle_mass[p]
+                push = m * row[24] * wave * (skin - phi)
+                r0, r1, r2 = particle_v[p, 0] - row[10], particle_v[p, 1] - row[11], particle_v[p, 2] - row[12]
+                vn = r0 * n[0] + r1 * n[1] + r2 * n[2]
+                t0, t1, t2 = r0 - vn * n[0], r1 - vn * n[1], r2 - vn * n[2]
+                slip = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+                drag = 0.0
+                if slip > 0.0:
+                    drag = row[14] * push
+                    if drag > m * slip / dt:
+                        drag = m * slip / dt
+                    drag /= slip
+                particle_force[p, 0] += push * n[0] - drag * t0
+                particle_force[p, 1] += push * n[1] - drag * t1
+                particle_force[p, 2] += push * n[2] - drag * t2
+        c += int(row[15])
+
+
+@njit(parallel=True, cache=True)
+def penalties(start, end, table, t, dt, wave, skin, pin_mask, particle_x, particle_v, particle_mass, particle_force):
+    """`penalty_at` for the particles start..end-1 (one body's)."""
+    for p in prange(start, end):
+        n = np.empty(3)
+        penalty_at(p, table, t, dt, wave, skin, pin_mask, particle_x, particle_v, particle_mass, particle_force, n)
+
+
+PENALTY = Kernel(penalty_at, penalties, scratch=(("n", 3),))

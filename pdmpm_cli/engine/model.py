@@ -61,6 +61,8 @@ class Model:
     # field per body, then the crack side of each of crack_bodies; (0, 0): the bodies share one grid field
     contact_stiffness: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))  # (fields, fields) penalty
     # coefficients [m^2/s^2]; 0 for a pair: the projection, -1 the projection between a crack's sides (engine.contact)
+    collider_penalty: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (bodies,) c^2 / dx^2 [1/s^2], which
+    # a penalty collider's stiffness scales; (0,) without a penalty collider (engine.colliders.penalties)
     crack_bodies: tuple[int, ...] = ()  # bodies whose cracks and notches split their field in two (engine.crack)
     particle_cut: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (n, 4) sum of X_q - X_p over the
     # bonds cutouts removed [m] and their count; (0, 4) without cutouts

@@ -15,7 +15,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from pdmpm_cli.engine.bonds import AVERAGED_DEFORMATION, averaged_deformation, bond_reference_terms
-from pdmpm_cli.engine.colliders import header_rows
+from pdmpm_cli.engine.colliders import PENALTY, header_rows
 from pdmpm_cli.engine.crack import PIECE_MIN, crack_normals
 from pdmpm_cli.engine.emitter import emit
 from pdmpm_cli.engine.fracture import CRITERION, damage, fracture_update, pieces
@@ -153,6 +153,13 @@ class Solver:
                 if fn is not None:
                     with self.timed(f"{fn.__name__}:{kind.name}"):
                         fn(self, i, dt)
+        if self.model.collider_penalty.size:
+            with self.timed("collider_penalty"):
+                m, a = self.m, self.a
+                for i, b in enumerate(self.model.bodies):
+                    self.backend.run(PENALTY, b.start, b.end, m.colliders, state.time, dt,
+                                     self.model.collider_penalty[i], 0.5 * b.spacing, m.pin_mask, a.particle_x,
+                                     a.particle_v, m.particle_mass, a.particle_force)
         if self.model.emitter is not None:  # births after the families' rebuild point, where x_prev = x
             with self.timed("emit"):
                 emit(self, state)
