@@ -142,7 +142,7 @@ def test_kernels_compile_for_an_h100():
     compiled = {line.split(":")[0] for line in r.stdout.splitlines()}
     assert compiled == {"averaged_deformation_at", "elastic_force_at", "fbar_dilatation_at", "plastic_force_at",
                         "incremental_dilatation_at", "viscoelastic_force_at", "volume_pressure_at", "copy_row_at",
-                        "shift_at", "apply_shift_at", "penalty_at",
+                        "grid_volume_ratio_at", "shift_at", "apply_shift_at", "penalty_at",
                         "zero_box", "p2g_kernel", "grid_update_kernel", "reset_stats", "g2p_kernel",
                         "crack_contact_kernel", "crack_update_kernel", "criterion_at", "zero_cells", "count_cells",
                         "cell_fraction", "field_bounds", "surface_kernel", "contact_kernel", "advect_kernel"}

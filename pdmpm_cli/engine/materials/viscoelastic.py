@@ -21,12 +21,13 @@ broken bond. Families are rebuilt from current neighbours (rebuild_families) so 
 Departure from the paper: the bonds' dilatation lets a liquid lose volume, since its increments start from the
 current configuration and a family rebuild that keeps every family's mean extension leaves it unchanged; in a
 sheared layer it even squeezes the liquid. So the bonds keep only their deviatoric part, and the bulk response is
-a pressure p = K (1 - J) from each particle's volume ratio J, advanced by the grid velocity's divergence
-(J <- J (1 + dt tr C), C the APIC velocity gradient; Stomakhin et al. 2014, Hu et al. 2018), acting through the
-grid as the MLS-MPM stress term (Hu et al. 2018). It cannot drift, and K defaults to the weakly compressible rule
-(sound speed ten times the largest flow speed, Monaghan 1994). The pressure sees volume at the scale of a cell, so
-a liquid's particles are also shifted apart after each step's motion where they crowd closer than the spacing
-(`shift`, Lind et al. 2012; docs/method.md).
+a pressure p = K (1 - J) from each particle's volume ratio J, advanced by the grid velocity gradient
+(J <- J det(I + dt C), C the APIC velocity gradient; Stomakhin et al. 2014, Hu et al. 2018), acting through the
+grid as the MLS-MPM stress term (Hu et al. 2018). K defaults to the weakly compressible rule (sound speed ten
+times the largest flow speed, Monaghan 1994). The pressure sees volume at the scale of a cell, so after each
+step's motion a liquid's J is lowered to the grid's volume ratio where the particles crowd more than J says
+(`grid_volume_ratio_at`, a one-sided particle density correction), and its particles are shifted apart where they crowd closer than the
+spacing (`shift`, Lind et al. 2012; docs/method.md).
 """
 
 import math
@@ -39,6 +40,7 @@ from pydantic import Field as Doc
 from scipy.spatial import cKDTree
 
 from pdmpm_cli.engine.bonds import bond_vector, influence
+from pdmpm_cli.engine.bspline import cubic_weight
 from pdmpm_cli.engine.fields import BOND, PARTICLE, Field
 from pdmpm_cli.engine.kernel import COPY_ROWS, Kernel
 from pdmpm_cli.engine.materials.base import MaterialKind
@@ -80,7 +82,8 @@ class Schema(Strict):
         "particle is pushed apart from the neighbours of its family closer than this multiple of the particle "
         "spacing h (the rest spacing is not pushed), except along the normal of a free surface or wall, and moves "
         "by that push less its family's mean push, so a flowing liquid's particles do not pair up below the cell "
-        "size; positions only (velocity and J stay). 0: off. None: 1 for a liquid "
+        "size; positions only (velocity and J stay). With it, J is first lowered to the grid's volume ratio where the "
+        "particles crowd more than J says (docs/method.md). 0: off. None: 1 for a liquid "
         "(relaxing_fraction 1), 0 otherwise. The neighbours are the family's: a reach beyond horizon - 2 "
         "rebuild_distance can miss a pair that closed in since the last rebuild [-].")
 
@@ -242,15 +245,28 @@ def viscoelastic_forces(start, end, bulk, mu, tau, fraction, break_stretch, delt
     return broken
 
 
+@njit(cache=True, inline="always")
+def step_volume_change(p, dt, particle_C):
+    """det(I + dt C_p): the volume change of the particle's neighbourhood over a step that moves every point by dt
+    times the linear velocity field C_p (the particles move so, x += dt v), not only its first order 1 + dt tr C."""
+    a00 = 1.0 + dt * particle_C[p, 0, 0]
+    a11 = 1.0 + dt * particle_C[p, 1, 1]
+    a22 = 1.0 + dt * particle_C[p, 2, 2]
+    a01, a02 = dt * particle_C[p, 0, 1], dt * particle_C[p, 0, 2]
+    a10, a12 = dt * particle_C[p, 1, 0], dt * particle_C[p, 1, 2]
+    a20, a21 = dt * particle_C[p, 2, 0], dt * particle_C[p, 2, 1]
+    return a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
+
+
 @njit(cache=True)
 def volume_pressure_at(p, bulk, dt_prev, dt, inv_dx, pin_mask, particle_volume, particle_mass, particle_J,
                        particle_C):
-    """Particle p's volume ratio J <- J (1 + dt_prev tr C) (C from the last G2P is the velocity gradient the
+    """Particle p's volume ratio J <- J det(I + dt_prev C) (C from the last G2P is the velocity gradient the
     particle moved with over dt_prev), then its pressure p = K (1 - J) folded into particle_C for this step's P2G:
     the MLS-MPM stress term -dt V sigma D^-1 (x_i - x_p) with sigma = -p I and V = J V0 is an isotropic affine
     momentum, so C += dt V p D^-1 / m (D^-1 = 3 / dx^2 for cubic B-splines; Hu et al. 2018). G2P overwrites C, so
     the checkpointed C stays the velocity gradient. Pinned particles keep only their prescribed motion."""
-    j = particle_J[p] * (1.0 + dt_prev * (particle_C[p, 0, 0] + particle_C[p, 1, 1] + particle_C[p, 2, 2]))
+    j = particle_J[p] * step_volume_change(p, dt_prev, particle_C)
     particle_J[p] = j
     if pin_mask.shape[0] > 0 and pin_mask[p] != 0:
         return
@@ -266,6 +282,39 @@ def volume_pressures(start, end, bulk, dt_prev, dt, inv_dx, pin_mask, particle_v
     for p in prange(start, end):
         volume_pressure_at(p, bulk, dt_prev, dt, inv_dx, pin_mask, particle_volume, particle_mass, particle_J,
                            particle_C)
+
+
+@njit(cache=True)
+def grid_volume_ratio_at(p, density, grid, origin, inv_dx, pin_mask, particle_x_prev, particle_J):
+    """J_p <- min(J_p, density / rho_p), rho_p = sum_i N_i(x_p) m_i / dx^3 the mass density of the last P2G's
+    grid at the position it scattered from (x_prev; a particle density correction, one-sided): where the
+    particles crowd more than J says, the pressure sees it. Only there: at a free surface or a wall the stencil is
+    part empty and rho_p falls below the density, which must not pull (tension). Pinned particles keep their J."""
+    if pin_mask.shape[0] > 0 and pin_mask[p] != 0:
+        return
+    fx = (particle_x_prev[p, 0] - origin[0]) * inv_dx
+    fy = (particle_x_prev[p, 1] - origin[1]) * inv_dx
+    fz = (particle_x_prev[p, 2] - origin[2]) * inv_dx
+    bx = int(math.floor(fx)) - 1
+    by = int(math.floor(fy)) - 1
+    bz = int(math.floor(fz)) - 1
+    mass = 0.0
+    for i in range(4):
+        wi = cubic_weight(fx - (bx + i))
+        for j in range(4):
+            wij = wi * cubic_weight(fy - (by + j))
+            for k in range(4):
+                mass += wij * cubic_weight(fz - (bz + k)) * grid[bx + i, by + j, bz + k, 0]
+    rho = mass * inv_dx * inv_dx * inv_dx
+    if rho * particle_J[p] > density:
+        particle_J[p] = density / rho
+
+
+@njit(parallel=True, cache=True)
+def grid_volume_ratios(start, end, density, grid, origin, inv_dx, pin_mask, particle_x_prev, particle_J):
+    """`grid_volume_ratio_at` for particles start..end-1."""
+    for p in prange(start, end):
+        grid_volume_ratio_at(p, density, grid, origin, inv_dx, pin_mask, particle_x_prev, particle_J)
 
 
 SHIFT_STRENGTH = 0.1  # a pair closer than the reach r_s separates by up to 2 x this x r_s per step
@@ -389,6 +438,7 @@ def apply_shifts(start, end, delta, pin_mask, bond_start, bond_nbr, bond_len0, p
 
 
 VOLUME_PRESSURE = Kernel(volume_pressure_at, volume_pressures)
+GRID_VOLUME_RATIO = Kernel(grid_volume_ratio_at, grid_volume_ratios)
 SHIFT = Kernel(shift_at, shifts)
 APPLY_SHIFT = Kernel(apply_shift_at, apply_shifts)
 INCREMENTAL_DILATATION = Kernel(incremental_dilatation_at, incremental_dilatation)
@@ -555,10 +605,14 @@ def bonds(solver, body: int, dt: float):
 
 
 def shift(solver, body: int, dt: float):
-    """After G2P moved the particles: the particle shift (shift_at), computed for every particle of the body from
-    the moved positions, then applied less its family's mean (apply_shift_at)."""
+    """After G2P moved the particles: J no larger than the grid's volume ratio where P2G scattered from
+    (grid_volume_ratio_at; the body's own field with contact), then the particle shift (shift_at), computed for
+    every particle of the body from the moved positions and applied less its family's mean (apply_shift_at)."""
     b, a, m = solver.model.bodies[body], solver.a, solver.m
     run = solver.backend.run
+    grid = a.grid_field[body] if solver.plan.contact else a.grid
+    run(GRID_VOLUME_RATIO, b.start, b.end, b.params.density, grid, m.origin, 1.0 / solver.model.dx, m.pin_mask,
+        a.particle_x_prev, a.particle_J)
     run(SHIFT, b.start, b.end, b.params.shift_distance * b.spacing, b.horizon, SHIFT_STRENGTH, SHIFT_CAP * b.spacing,
         SURFACE_OFFSET * b.horizon, m.pin_mask, a.particle_x, m.particle_volume, a.bond_start, a.bond_nbr,
         a.particle_shift)
@@ -587,7 +641,7 @@ KIND = MaterialKind(
     start=init_state, born=born, with_flow_speed=with_flow_speed,
     outputs={"particle_J": volume_ratio},
     fields=(
-        Field("particle_J", PARTICLE, fill=1.0, doc="volume ratio J = V / V0 from the grid velocity divergence [-]"),
+        Field("particle_J", PARTICLE, fill=1.0, doc="volume ratio J = V / V0 from the grid velocity gradient [-]"),
         Field("bond_len0", BOND, doc="formation length of each bond [m] (< 0: broken)"),
         Field("bond_force_el", BOND, doc="non-relaxing pair force [N/m^6]"),
         Field("bond_force_visc", BOND, doc="relaxing pair force [N/m^6]"),
