@@ -226,10 +226,10 @@ def passing(mode: str = "separate", friction: float = 0.5, v0: float = 0.5, dura
 
 
 def ball_drop(spacings: float = 5, drop: float = 0.1, radius: float = 0.05, E: float = 1e6, flip: float = 0.0,
-              response: str = "projection", stiffness: float | None = None) -> dict:
+              response: str | None = None, stiffness: float | None = None) -> dict:
     """An elastic ball of `spacings` particle spacings in radius (spacing half a cell) released with its lowest
     point `drop` [m] above a rigid, frictionless floor collider (a plane, boundary separate, the collider's
-    `response`, and its `stiffness`: None the default), under gravity.
+    `response` and `stiffness`: None, the scene's default), under gravity.
     Rebound height over drop height is e^2 (coefficient of restitution e; an elastic impact: 1). Returns:
     rebound, the highest the ball's lowest point rises after the impact over `drop`; contact, the impact's duration
     [s] (Hertz against a rigid plane: 2.87 (m^2 / (R E*^2 v))^(1/5), E* = E / (1 - nu^2)); hertz, that prediction."""
@@ -247,7 +247,7 @@ def ball_drop(spacings: float = 5, drop: float = 0.1, radius: float = 0.05, E: f
                                                "max": [radius + pad, y0 + radius + pad, radius + pad]}},
         "gravity": [0, -G, 0],
         "colliders": [{"type": "plane", "point": [0, floor, 0], "normal": [0, 1, 0], "boundary": "separate",
-                       "friction": 0.0, "response": response,
+                       "friction": 0.0, **({} if response is None else {"response": response}),
                        **({} if stiffness is None else {"stiffness": stiffness})}],
         "bodies": [{"name": "ball", "geometry": {"mode": "cloud", "spacing": h,
                                                   "shape": {"type": "sphere", "center": [0, y0, 0], "radius": radius}},
