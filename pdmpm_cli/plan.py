@@ -105,6 +105,8 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
     phases = ["fbar"] if need_fbar else []
     for hook in ("before_forces", "forces", "after_forces"):  # each named by its function: dilatation:plastic
         phases += [f"{getattr(k, hook).__name__}:{k.name}" for k in used if getattr(k, hook) is not None]
+    if model.collider_penalty.size:  # penalty colliders push the particles that touch them (engine.colliders)
+        phases.append("collider_penalty")
     if model.emitter is not None:  # births after the force hooks (engine.emitter)
         phases.append("emit")
     # Crack particles meet the grid's material after its update and before intact particles read it back.

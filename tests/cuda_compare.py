@@ -88,6 +88,11 @@ SYNTHETIC = {
     "mesh_collider": scene([{"name": "block", "geometry": BLOCK, "material": ELASTIC, "velocity": [0.0, 6.0, 0.0]}],
                            colliders=[{"type": "mesh", "path": "ball.off", "translate": [0.52, 0.5, 0.5],
                                        "velocity": [0.0, -1.0, 0.0], "boundary": "slip", "friction": 0.3}]),
+    # a block thrown down and along at a separate plane: the penalty response (response auto with APIC) pushes the
+    # particles that touch it, with friction
+    "penalty_floor": scene([{"name": "block", "geometry": BLOCK, "material": ELASTIC, "velocity": [1.0, -6.0, 0.0]}],
+                           colliders=[{"type": "plane", "point": [0, 0.165, 0], "normal": [0, 1, 0],
+                                       "boundary": "separate", "friction": 0.3}]),
 }
 # The FLIP share with MUSL's position pass (simulation.flip): the pinned bar among colliders in the wind, and the
 # two bodies in contact (the remap's contact pass)

@@ -93,6 +93,12 @@ def test_mesh_collider_alike(compared):
     assert_same(row)
 
 
+def test_penalty_collider_alike(compared):
+    row = compared["penalty_floor"]
+    assert "collider_penalty" in row["phases"] and row["external_impulse"] > 1e-3  # the floor pushed back
+    assert_same(row)
+
+
 @pytest.mark.parametrize("case", ["two_bodies", "penalty_contact"])
 def test_two_bodies_in_contact_alike(compared, case):
     row = compared[case]
