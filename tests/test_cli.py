@@ -75,7 +75,7 @@ def test_validate_misspelt_key_exit_2_with_position(tmp_path):
 def test_validate_explain_prints_plan(small_scene):
     r = pdmpm("validate", small_scene, "--explain", "--set", "simulation.dt=1.0")
     assert r.returncode == 0, r.stderr
-    for text in ("phases per step: fbar -> bonds:elastic -> p2g -> grid_update -> g2p", "backend: cpu", "E_eff",
+    for text in ("phases per step: fbar -> bonds:elastic -> collider_penalty -> p2g -> grid_update -> g2p", "backend: cpu", "E_eff",
                  "bond_nbr", "rule: conservative; binding: bonds",
                  "warning: simulation.dt = 1 s is above the stability bound"):
         assert text in r.stdout
