@@ -103,9 +103,10 @@ def pair_force_of(has_mu, lam, mu, cp, cq, a, ir, one_ep, le, ly, lz, e0, e1, e2
 
 @njit(cache=True, inline="always")
 def gather_pairs(p, has_mu, has_crack, has_active, has_ep, particle_x, rest_x, bond_start, bond_nbr, bond_wv,
-                 bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, s, nbr):
-    """Rows of s and nbr for the intact bonds p -> q with q > p: eta, Ybar_p = Fbar_p xi, Ybar_q = Fbar_q xi
-    (eta for a crack-surface particle), w V_q, 1 / |xi|, c_q, 1 + e_p and q. Returns their count."""
+                 bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, s, slot):
+    """Rows 0-12 of s and slot for the intact bonds b = p -> q with q > p: eta, Ybar_p = Fbar_p xi, Ybar_q = Fbar_q xi
+    (eta for a crack-surface particle), w V_q, 1 / |xi|, c_q, e_p (0 without bond_ep) and b. Returns their count.
+    The pair passes of elastic and plastic bodies both gather with it (plastic.plastic_forces adds rows of its own)."""
     r0, r1, r2 = rest_x[p, 0], rest_x[p, 1], rest_x[p, 2]
     p0, p1, p2 = particle_x[p, 0], particle_x[p, 1], particle_x[p, 2]
     f = p if has_mu else 0
@@ -136,8 +137,8 @@ def gather_pairs(p, has_mu, has_crack, has_active, has_ep, particle_x, rest_x, b
         s[9, m] = bond_wv[b]
         s[10, m] = bond_inv_len[b]
         s[11, m] = particle_coef[q]
-        s[12, m] = 1.0 + bond_ep[b] if has_ep else 1.0
-        nbr[m] = q
+        s[12, m] = bond_ep[b] if has_ep else 0.0
+        slot[m] = b
         m += 1
     return m
 
@@ -163,24 +164,24 @@ def elastic_forces(start, end, lam, mu, particle_x, rest_x, particle_volume, bon
             f[p, 0] = f[p, 1] = f[p, 2] = 0.0
         lo, hi = start + t * n // nt, start + (t + 1) * n // nt
         width = chunk_width(bond_start, lo, hi)
-        s = np.zeros((13, width))  # eta, Ybar_p, Ybar_q (3 each), w V_q, 1 / |xi|, c_q, 1 + e_p
+        s = np.zeros((13, width))  # eta, Ybar_p, Ybar_q (3 each), w V_q, 1 / |xi|, c_q, e_p
         pair = np.zeros((3, width))  # G of each pair
-        nbr = np.zeros(width, dtype=np.int64)
+        slot = np.zeros(width, dtype=np.int64)  # the bond p -> q
         for p in range(lo, hi):
             m = gather_pairs(p, has_mu, has_crack, has_active, has_ep, particle_x, rest_x, bond_start, bond_nbr,
                              bond_wv, bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef,
-                             particle_Fbar, s, nbr)
+                             particle_Fbar, s, slot)
             cp, vp = particle_coef[p], particle_volume[p]
             for k in range(m):
                 pair[0, k], pair[1, k], pair[2, k] = pair_force(
-                    has_mu, lam, mu, cp, s[11, k], s[9, k] * s[10, k] * vp, s[10, k], s[12, k], s[0, k], s[1, k],
-                    s[2, k], s[3, k], s[4, k], s[5, k], s[6, k], s[7, k], s[8, k])
+                    has_mu, lam, mu, cp, s[11, k], s[9, k] * s[10, k] * vp, s[10, k], 1.0 + s[12, k], s[0, k],
+                    s[1, k], s[2, k], s[3, k], s[4, k], s[5, k], s[6, k], s[7, k], s[8, k])
             f0 = f1 = f2 = 0.0
             for k in range(m):
                 f0 += pair[0, k]
                 f1 += pair[1, k]
                 f2 += pair[2, k]
-                q = nbr[k]
+                q = bond_nbr[slot[k]]
                 f[q, 0] -= pair[0, k]
                 f[q, 1] -= pair[1, k]
                 f[q, 2] -= pair[2, k]
