@@ -99,6 +99,30 @@ def overlap_box(boxes) -> np.ndarray:
     return np.array([lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]], dtype=np.int64)
 
 
+@njit(cache=True)
+def meeting_box(grid_field, box) -> np.ndarray:
+    """Node box around the nodes of `box` where two or more fields have mass, after P2G: the only nodes where
+    `contact_node_at` acts (it leaves a node with one field's mass alone), so the surfaces and the contact pass need
+    no more (the CPU's; empty, i0 = i1 = 0, when there is none). One serial pass over the box's masses: a small
+    box, as `overlap_box` is."""
+    lo = np.full(3, np.iinfo(np.int64).max)
+    hi = np.full(3, -1)
+    for i in range(box[0], box[1]):
+        for j in range(box[2], box[3]):
+            for k in range(box[4], box[5]):
+                count = 0
+                for f in range(grid_field.shape[0]):
+                    if grid_field[f, i, j, k, 0] > 0.0:
+                        count += 1
+                if count >= 2:
+                    lo[0], lo[1], lo[2] = min(lo[0], i), min(lo[1], j), min(lo[2], k)
+                    hi[0], hi[1], hi[2] = max(hi[0], i + 1), max(hi[1], j + 1), max(hi[2], k + 1)
+    out = np.zeros(6, dtype=np.int64)
+    if hi[0] >= 0:
+        out[0], out[1], out[2], out[3], out[4], out[5] = lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
+    return out
+
+
 @njit(parallel=True, cache=True)
 def surfaces(particle_x, particle_mass, particle_crack, origin, inv_dx, box, private, out, owner, rest_x, crack_n,
              piece, half_h, cbox, want):
