@@ -32,6 +32,7 @@ from pdmpm_cli.engine.kernel import Kernel
 from pdmpm_cli.engine.materials.base import MaterialKind
 from pdmpm_cli.spec import Strict
 
+NO_THETA = np.zeros(0)  # gather_pairs' particle_theta for elastic bodies: no plastic rows
 TINY = 1e-300  # floor of a squared bond length: a zero-length bond gets a finite coefficient times a zero vector
 ROOT_TINY = math.sqrt(TINY)  # floor of a bond length: max(sqrt(x), ROOT_TINY) = sqrt(max(x, TINY)) to the bit
 
@@ -103,10 +104,13 @@ def pair_force_of(has_mu, lam, mu, cp, cq, a, ir, one_ep, le, ly, lz, e0, e1, e2
 
 @njit(cache=True, inline="always")
 def gather_pairs(p, has_mu, has_crack, has_active, has_ep, particle_x, rest_x, bond_start, bond_nbr, bond_wv,
-                 bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, s, slot):
+                 bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, particle_theta, s,
+                 slot):
     """Rows 0-12 of s and slot for the intact bonds b = p -> q with q > p: eta, Ybar_p = Fbar_p xi, Ybar_q = Fbar_q xi
-    (eta for a crack-surface particle), w V_q, 1 / |xi|, c_q, e_p (0 without bond_ep) and b. Returns their count.
-    The pair passes of elastic and plastic bodies both gather with it (plastic.plastic_forces adds rows of its own)."""
+    (eta for a crack-surface particle), w V_q, 1 / |xi|, c_q, e_p (0 without bond_ep) and b; with a particle_theta
+    (plastic bodies: plastic.plastic_forces; empty for elastic ones) also rows 13 and 14, |xi| and theta_q. Returns
+    their count."""
+    with_theta = particle_theta.shape[0] > 0
     r0, r1, r2 = rest_x[p, 0], rest_x[p, 1], rest_x[p, 2]
     p0, p1, p2 = particle_x[p, 0], particle_x[p, 1], particle_x[p, 2]
     f = p if has_mu else 0
@@ -121,8 +125,8 @@ def gather_pairs(p, has_mu, has_crack, has_active, has_ep, particle_x, rest_x, b
             continue
         e0, e1, e2 = particle_x[q, 0] - p0, particle_x[q, 1] - p1, particle_x[q, 2] - p2
         s[0, m], s[1, m], s[2, m] = e0, e1, e2
+        x0, x1, x2 = rest_x[q, 0] - r0, rest_x[q, 1] - r1, rest_x[q, 2] - r2
         if has_mu:
-            x0, x1, x2 = rest_x[q, 0] - r0, rest_x[q, 1] - r1, rest_x[q, 2] - r2
             if p_crack:
                 s[3, m], s[4, m], s[5, m] = e0, e1, e2
             else:
@@ -138,6 +142,8 @@ def gather_pairs(p, has_mu, has_crack, has_active, has_ep, particle_x, rest_x, b
         s[10, m] = bond_inv_len[b]
         s[11, m] = particle_coef[q]
         s[12, m] = bond_ep[b] if has_ep else 0.0
+        if with_theta:
+            s[13, m], s[14, m] = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2), particle_theta[q]
         slot[m] = b
         m += 1
     return m
@@ -170,7 +176,7 @@ def elastic_forces(start, end, lam, mu, particle_x, rest_x, particle_volume, bon
         for p in range(lo, hi):
             m = gather_pairs(p, has_mu, has_crack, has_active, has_ep, particle_x, rest_x, bond_start, bond_nbr,
                              bond_wv, bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef,
-                             particle_Fbar, s, slot)
+                             particle_Fbar, NO_THETA, s, slot)
             cp, vp = particle_coef[p], particle_volume[p]
             for k in range(m):
                 pair[0, k], pair[1, k], pair[2, k] = pair_force(

@@ -203,19 +203,15 @@ def plastic_forces(start, end, lam, mu, psi, particle_x, rest_x, particle_volume
             f[p, 0] = f[p, 1] = f[p, 2] = 0.0
         lo, hi = start + t * n // nt, start + (t + 1) * n // nt
         width = chunk_width(bond_start, lo, hi)
-        s = np.zeros((15, width))  # elastic.gather_pairs' rows (eta, Ybar_p, Ybar_q, w V_q, 1 / |xi|, c_q, e_p),
-        # then |xi| (then f / psi_p), theta_q
+        s = np.zeros((15, width))  # elastic.gather_pairs' rows: eta, Ybar_p, Ybar_q (3 each), w V_q, 1 / |xi|, c_q,
+        # e_p, |xi| (then f / psi_p), theta_q
         pair = np.zeros((3, width))  # G of each pair
         slot = np.zeros(width, dtype=np.int64)  # the bond p -> q
         fmax = -1.0
         for p in range(lo, hi):
             m = gather_pairs(p, has_mu, has_crack, has_active, True, particle_x, rest_x, bond_start, bond_nbr, bond_wv,
-                             bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, s, slot)
-            r0, r1, r2 = rest_x[p, 0], rest_x[p, 1], rest_x[p, 2]
-            for k in range(m):
-                q = bond_nbr[slot[k]]
-                x0, x1, x2 = rest_x[q, 0] - r0, rest_x[q, 1] - r1, rest_x[q, 2] - r2
-                s[13, k], s[14, k] = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2), particle_theta[q]
+                             bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar,
+                             particle_theta, s, slot)
             cp, vp, tp = particle_coef[p], particle_volume[p], particle_theta[p]
             for k in range(m):
                 ep, ratio, g0, g1, g2 = returned_force(has_mu, lam, mu, psi, s[13, k], tp, s[14, k], s[12, k], cp,
