@@ -207,6 +207,22 @@ def sum_forces(start, end, force_private, particle_force):
             particle_force[p, a] = acc
 
 
+@njit(cache=True, inline="always")
+def bond_at(p, q, has_mu, has_crack, p_crack, particle_x, rest_x, particle_crack, particle_Fbar):
+    """|xi|, eta, Ybar_p and Ybar_q of bond p -> q (Ybar = Fbar xi, or eta for a crack-surface particle or where
+    mu = 0): the vectors of one bond in the GPU's forms of the pair passes (`elastic_force_at`,
+    plastic.plastic_force_at)."""
+    x0, x1, x2, r = bond_vector(rest_x, p, q)
+    e0, e1, e2, _ = bond_vector(particle_x, p, q)
+    y0, y1, y2, z0, z1, z2 = e0, e1, e2, e0, e1, e2
+    if has_mu:
+        if not p_crack:
+            y0, y1, y2, _ = averaged_bond(particle_Fbar[p], x0, x1, x2)
+        if not (has_crack and particle_crack[q] != 0):
+            z0, z1, z2, _ = averaged_bond(particle_Fbar[q], x0, x1, x2)
+    return r, e0, e1, e2, y0, y1, y2, z0, z1, z2
+
+
 @njit(cache=True)
 def elastic_force_at(p, lam, mu, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_wv, bond_inv_len,
                      bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, particle_force, force_private):
@@ -221,14 +237,8 @@ def elastic_force_at(p, lam, mu, particle_x, rest_x, particle_volume, bond_start
         if has_active and bond_active[b] == 0:
             continue
         q = bond_nbr[b]
-        x0, x1, x2, _ = bond_vector(rest_x, p, q)
-        e0, e1, e2, _ = bond_vector(particle_x, p, q)
-        y0, y1, y2, z0, z1, z2 = e0, e1, e2, e0, e1, e2
-        if has_mu:
-            if not p_crack:
-                y0, y1, y2, _ = averaged_bond(particle_Fbar[p], x0, x1, x2)
-            if not (has_crack and particle_crack[q] != 0):
-                z0, z1, z2, _ = averaged_bond(particle_Fbar[q], x0, x1, x2)
+        _, e0, e1, e2, y0, y1, y2, z0, z1, z2 = bond_at(p, q, has_mu, has_crack, p_crack, particle_x, rest_x,
+                                                        particle_crack, particle_Fbar)
         one_ep = 1.0 + bond_ep[b] if has_ep else 1.0
         g0, g1, g2 = pair_force(has_mu, lam, mu, cp, particle_coef[q], bond_wv[b] * bond_inv_len[b] * vp,
                                 bond_inv_len[b], one_ep, e0, e1, e2, y0, y1, y2, z0, z1, z2)

@@ -37,7 +37,7 @@ from pdmpm_cli.engine.bonds import averaged_deformation_at, bond_vector, chunk_w
 from pdmpm_cli.engine.fields import BOND, PARTICLE, Field
 from pdmpm_cli.engine.kernel import Kernel
 from pdmpm_cli.engine.materials import elastic
-from pdmpm_cli.engine.materials.elastic import ROOT_TINY, averaged_bond, gather_pairs, pair_force_of, sum_forces
+from pdmpm_cli.engine.materials.elastic import ROOT_TINY, bond_at, gather_pairs, pair_force_of, sum_forces
 from pdmpm_cli.engine.materials.base import MaterialKind
 from pdmpm_cli.engine.parallel import particle_chunks
 
@@ -268,14 +268,8 @@ def plastic_force_at(p, lam, mu, psi, particle_x, rest_x, particle_volume, bond_
         if has_active and bond_active[b] == 0:
             continue
         q = bond_nbr[b]
-        x0, x1, x2, r = bond_vector(rest_x, p, q)
-        e0, e1, e2, _ = bond_vector(particle_x, p, q)
-        y0, y1, y2, z0, z1, z2 = e0, e1, e2, e0, e1, e2
-        if has_mu:
-            if not p_crack:
-                y0, y1, y2, _ = averaged_bond(particle_Fbar[p], x0, x1, x2)
-            if not (has_crack and particle_crack[q] != 0):
-                z0, z1, z2, _ = averaged_bond(particle_Fbar[q], x0, x1, x2)
+        r, e0, e1, e2, y0, y1, y2, z0, z1, z2 = bond_at(p, q, has_mu, has_crack, p_crack, particle_x, rest_x,
+                                                        particle_crack, particle_Fbar)
         ep, ratio, g0, g1, g2 = returned_force(has_mu, lam, mu, psi, r, tp, particle_theta[q], bond_ep[b], cp,
                                                particle_coef[q], bond_wv[b] * bond_inv_len[b] * vp, bond_inv_len[b],
                                                e0, e1, e2, y0, y1, y2, z0, z1, z2)
