@@ -149,40 +149,49 @@ def times_kinv(p, a00, a01, a02, a10, a11, a12, a20, a21, a22, particle_Kinv, pa
         particle_Fbar[p, 2, c] = a20 * k[0, c] + a21 * k[1, c] + a22 * k[2, c]
 
 
+@njit(cache=True, inline="always")
+def add_outer(a00, a01, a02, a10, a11, a12, a20, a21, a22, e0, e1, e2, x0, x1, x2):
+    """The nine sums of eq. 4, A = sum_q w V_q eta (x) xi, with one bond's term added (x = w V_q xi)."""
+    return (a00 + e0 * x0, a01 + e0 * x1, a02 + e0 * x2, a10 + e1 * x0, a11 + e1 * x1, a12 + e1 * x2,
+            a20 + e2 * x0, a21 + e2 * x1, a22 + e2 * x2)
+
+
+@njit(cache=True, inline="always")
+def fbar_of_rows(p, s, m, particle_Kinv, particle_Fbar):
+    """Fbar_p (eq. 4) from a family gathered into scratch rows (xi in rows 0-2, eta in 3-5, w V_q in 6, bonds
+    0..m-1): the sums of w V_q eta (x) xi in bond order (no fastmath: the order is fixed), then times K_p^-1. The CPU
+    forms of eq. 4 share it (`averaged_deformation`, plastic.fbar_dilatation)."""
+    a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
+    for k in range(m):
+        w = s[6, k]
+        x0, x1, x2 = w * s[0, k], w * s[1, k], w * s[2, k]
+        a00, a01, a02, a10, a11, a12, a20, a21, a22 = add_outer(a00, a01, a02, a10, a11, a12, a20, a21, a22, s[3, k],
+                                                                s[4, k], s[5, k], x0, x1, x2)
+    times_kinv(p, a00, a01, a02, a10, a11, a12, a20, a21, a22, particle_Kinv, particle_Fbar)
+
+
 @njit(parallel=True, cache=True, error_model="numpy")  # no fastmath: see parallel.py
 def averaged_deformation(start, end, particle_x, rest_x, bond_start, bond_nbr, bond_wv, particle_Kinv,
                          particle_Fbar, chunks):
     """Fbar_p = (sum_q w V_q eta (x) xi) K_p^-1 (eq. 4 with the correction of docs/method.md: eta, not w, in front)
     for particles start..end-1, over the whole reference family: only intact particles use Fbar (a particle with a
     broken bond uses eta instead, elastic.py), so the sum always matches the K^-1 it is multiplied by. The CPU's
-    form: two loops per particle, a gather of its neighbours' bond vectors (w V_q is stored per bond, bond_wv) into
-    contiguous scratch rows, then a loop without gathers that sums in bond order (no fastmath: the order is fixed)."""
+    form: two loops per particle, a gather of its neighbours' bond vectors and w V_q (stored per bond, bond_wv) into
+    contiguous scratch rows, then a loop without gathers that sums in bond order (`fbar_of_rows`)."""
     n = end - start
     for t in prange(chunks):
         lo, hi = start + t * n // chunks, start + (t + 1) * n // chunks
-        s = np.empty((6, chunk_width(bond_start, lo, hi)))  # w V_q xi (3), eta (3)
+        s = np.empty((7, chunk_width(bond_start, lo, hi)))  # xi (3), eta (3), w V_q
         for p in range(lo, hi):
             r0, r1, r2 = rest_x[p, 0], rest_x[p, 1], rest_x[p, 2]
             p0, p1, p2 = particle_x[p, 0], particle_x[p, 1], particle_x[p, 2]
             b0, m = bond_start[p], bond_start[p + 1] - bond_start[p]
             for k in range(m):
-                q, w = bond_nbr[b0 + k], bond_wv[b0 + k]
-                s[0, k], s[1, k], s[2, k] = w * (rest_x[q, 0] - r0), w * (rest_x[q, 1] - r1), w * (rest_x[q, 2] - r2)
+                q = bond_nbr[b0 + k]
+                s[0, k], s[1, k], s[2, k] = rest_x[q, 0] - r0, rest_x[q, 1] - r1, rest_x[q, 2] - r2
                 s[3, k], s[4, k], s[5, k] = particle_x[q, 0] - p0, particle_x[q, 1] - p1, particle_x[q, 2] - p2
-            a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
-            for k in range(m):
-                x0, x1, x2 = s[0, k], s[1, k], s[2, k]
-                e0, e1, e2 = s[3, k], s[4, k], s[5, k]
-                a00 += e0 * x0
-                a01 += e0 * x1
-                a02 += e0 * x2
-                a10 += e1 * x0
-                a11 += e1 * x1
-                a12 += e1 * x2
-                a20 += e2 * x0
-                a21 += e2 * x1
-                a22 += e2 * x2
-            times_kinv(p, a00, a01, a02, a10, a11, a12, a20, a21, a22, particle_Kinv, particle_Fbar)
+                s[6, k] = bond_wv[b0 + k]
+            fbar_of_rows(p, s, m, particle_Kinv, particle_Fbar)
 
 
 @njit(cache=True)
@@ -195,16 +204,9 @@ def averaged_deformation_at(p, particle_x, rest_x, bond_start, bond_nbr, bond_wv
     for b in range(bond_start[p], bond_start[p + 1]):
         q, w = bond_nbr[b], bond_wv[b]
         x0, x1, x2 = w * (rest_x[q, 0] - r0), w * (rest_x[q, 1] - r1), w * (rest_x[q, 2] - r2)
-        e0, e1, e2 = particle_x[q, 0] - p0, particle_x[q, 1] - p1, particle_x[q, 2] - p2
-        a00 += e0 * x0
-        a01 += e0 * x1
-        a02 += e0 * x2
-        a10 += e1 * x0
-        a11 += e1 * x1
-        a12 += e1 * x2
-        a20 += e2 * x0
-        a21 += e2 * x1
-        a22 += e2 * x2
+        a00, a01, a02, a10, a11, a12, a20, a21, a22 = add_outer(a00, a01, a02, a10, a11, a12, a20, a21, a22,
+                                                                particle_x[q, 0] - p0, particle_x[q, 1] - p1,
+                                                                particle_x[q, 2] - p2, x0, x1, x2)
     times_kinv(p, a00, a01, a02, a10, a11, a12, a20, a21, a22, particle_Kinv, particle_Fbar)
 
 

@@ -188,7 +188,7 @@ def respond(v, vc0, vc1, vc2, n, boundary, friction):
     v[0], v[1], v[2] = r0 + vc0, r1 + vc1, r2 + vc2
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def collide_all(table, x0, x1, x2, t, v, n):
     """Apply every collider whose level set is <= 0 at x (a penalty collider's: below its backstop depth) to the
     velocity v (in place)."""
@@ -200,7 +200,7 @@ def collide_all(table, x0, x1, x2, t, v, n):
         c += int(row[15])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def push_out(table, x, t, n):
     """Move point x (in place) out of any collider it penetrates, to the surface along the normal (a penalty
     collider's: to its backstop depth)."""

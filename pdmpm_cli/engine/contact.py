@@ -27,7 +27,8 @@ closer, while the bodies approach and while they separate, so its work comes bac
 
 Contact can only act where two fields have mass, i.e. where the node boxes of two bodies (their particles' stencils)
 overlap: the surfaces and the contact pass cover only `overlap_box` of those, not the whole P2G box, so a small
-contact zone in a large scene costs little (every node outside it has at most one field's mass: no change).
+contact zone in a large scene costs little (every node outside it has at most one field's mass: no change). The CPU
+narrows it after P2G to the nodes where two fields do have mass (`meeting_box`): none while bodies are apart.
 """
 
 import math
@@ -55,11 +56,12 @@ def scatter_surface(g, i, j, k, g0, g1, g2, s0, s1, s2):
 
 
 @njit(cache=True, inline="always")
-def surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, g, wx, wy, wz, gx, gy, gz, owner, rest_x,
-               crack_n, piece, half_h, cbox, want):
+def surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, g, box, wx, wy, wz, gx, gy, gz, owner,
+               rest_x, crack_n, piece, half_h, cbox, want):
     """Particle p's share of its field's mass gradient m_p grad N_I(x_p) [kg/m] and of the mass-weighted offset
-    m_p N_I (x_p - x_I) [kg m] -> g (the particles P2G scatters: crack particles and off-grid ones do not; with
-    crack fields, at the nodes where p lies on side `want`, as transfer.p2g_at)."""
+    m_p N_I (x_p - x_I) [kg m] -> g on the nodes of its stencil within the node box `box` (the particles P2G
+    scatters: crack particles and off-grid ones do not; with crack fields, at the nodes where p lies on side `want`,
+    as transfer.p2g_at)."""
     if particle_crack.shape[0] > 0 and particle_crack[p] != 0:
         return
     sided = owner.shape[0] > 0 and not stencil_off_box(particle_x, p, origin, inv_dx, cbox)
@@ -70,11 +72,11 @@ def surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, g, 
         return
     dx = 1.0 / inv_dx
     m = particle_mass[p]
-    for i in range(4):
+    for i in range(max(box[0] - bx, 0), min(box[1] - bx, 4)):
         d0 = (fx - bx - i) * dx
-        for j in range(4):
+        for j in range(max(box[2] - by, 0), min(box[3] - by, 4)):
             d1 = (fy - by - j) * dx
-            for k in range(4):
+            for k in range(max(box[4] - bz, 0), min(box[5] - bz, 4)):
                 if sided and node_side(p, owner[bx + i, by + j, bz + k], rest_x, crack_n, piece, half_h) != want:
                     continue
                 d2 = (fz - bz - k) * dx
@@ -99,13 +101,36 @@ def overlap_box(boxes) -> np.ndarray:
     return np.array([lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]], dtype=np.int64)
 
 
+@njit(cache=True)
+def meeting_box(grid_field, box) -> np.ndarray:
+    """Node box around the nodes of `box` where two or more fields have mass, after P2G: the only nodes where
+    `contact_node_at` acts (it leaves a node with one field's mass alone), so the surfaces and the contact pass need
+    no more (the CPU's; empty, i0 = i1 = 0, when there is none). One serial pass over the box's masses: a small
+    box, as `overlap_box` is."""
+    lo = np.full(3, np.iinfo(np.int64).max)
+    hi = np.full(3, -1)
+    for i in range(box[0], box[1]):
+        for j in range(box[2], box[3]):
+            for k in range(box[4], box[5]):
+                count = 0
+                for f in range(grid_field.shape[0]):
+                    if grid_field[f, i, j, k, 0] > 0.0:
+                        count += 1
+                if count >= 2:
+                    lo[0], lo[1], lo[2] = min(lo[0], i), min(lo[1], j), min(lo[2], k)
+                    hi[0], hi[1], hi[2] = max(hi[0], i + 1), max(hi[1], j + 1), max(hi[2], k + 1)
+    out = np.zeros(6, dtype=np.int64)
+    if hi[0] >= 0:
+        out[0], out[1], out[2], out[3], out[4], out[5] = lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
+    return out
+
+
 @njit(parallel=True, cache=True)
 def surfaces(particle_x, particle_mass, particle_crack, origin, inv_dx, box, private, out, owner, rest_x, crack_n,
              piece, half_h, cbox, want):
     """`surface_at` for every particle whose stencil meets the node box (`overlap_box`) -> out on the box: thread t
     scatters a fixed particle range into private[t], then the private grids are summed in thread order (as
-    transfer.p2g, so runs are reproducible). A particle's nodes outside the box take stale sums in private[t], which
-    nothing reads: the box is cleared before every scatter."""
+    transfer.p2g, so runs are reproducible); a particle scatters only onto its nodes within the box."""
     nt = private.shape[0]
     n = particle_x.shape[0]
     for t in prange(nt):
@@ -120,8 +145,8 @@ def surfaces(particle_x, particle_mass, particle_crack, origin, inv_dx, box, pri
         for p in range(t * n // nt, (t + 1) * n // nt):
             if stencil_off_box(particle_x, p, origin, inv_dx, box):
                 continue
-            surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, g, wx, wy, wz, gx, gy, gz, owner,
-                       rest_x, crack_n, piece, half_h, cbox, want)
+            surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, g, box, wx, wy, wz, gx, gy, gz,
+                       owner, rest_x, crack_n, piece, half_h, cbox, want)
     for i in prange(box[0], box[1]):
         for j in range(box[2], box[3]):
             for k in range(box[4], box[5]):

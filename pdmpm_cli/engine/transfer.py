@@ -341,37 +341,38 @@ def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity
     dx = 1.0 / inv_dx
     scale = 3.0 * inv_dx * inv_dx  # D_p^-1 for cubic B-splines (Jiang et al. 2015)
     sided = owner.shape[0] > 0 and not stencil_off_box(particle_x, p, origin, inv_dx, cbox)
-    fx, fy, fz, bx, by, bz = stencil(particle_x, p, origin, inv_dx, wx, wy, wz)
-    v0, v1, v2, b00, b01, b02, b10, b11, b12, b20, b21, b22 = affine_sums(grid, grid1, 1, bx, by, bz, fx, fy, fz,
-                                                                         dx, wx, wy, wz, sided, p, owner, rest_x,
-                                                                         crack_n, piece, half_h)
     pinned = pin_mask.shape[0] > 0 and pin_mask[p] != 0
     remapped = grid.shape[3] > CHANNELS
-    if remapped and not pinned:
-        o0, o1, o2, a00, a01, a02, a10, a11, a12, a20, a21, a22 = affine_sums(grid, grid1, 4, bx, by, bz, fx, fy,
-                                                                             fz, dx, wx, wy, wz, sided, p, owner,
-                                                                             rest_x, crack_n, piece, half_h)
-        v0 += flip * (particle_v[p, 0] - o0)
-        v1 += flip * (particle_v[p, 1] - o1)
-        v2 += flip * (particle_v[p, 2] - o2)
-        g = flip / scale
-        b00 += g * (particle_C[p, 0, 0] - a00 * scale)
-        b01 += g * (particle_C[p, 0, 1] - a01 * scale)
-        b02 += g * (particle_C[p, 0, 2] - a02 * scale)
-        b10 += g * (particle_C[p, 1, 0] - a10 * scale)
-        b11 += g * (particle_C[p, 1, 1] - a11 * scale)
-        b12 += g * (particle_C[p, 1, 2] - a12 * scale)
-        b20 += g * (particle_C[p, 2, 0] - a20 * scale)
-        b21 += g * (particle_C[p, 2, 1] - a21 * scale)
-        b22 += g * (particle_C[p, 2, 2] - a22 * scale)
-    if pinned:
+    if pinned:  # the prescribed velocity, no affine part: the grid's are not read
         share = pin_share(pin_stop[p], t_new, dt)
         v0, v1, v2 = share * pin_velocity[p, 0], share * pin_velocity[p, 1], share * pin_velocity[p, 2]
         b00 = b01 = b02 = b10 = b11 = b12 = b20 = b21 = b22 = 0.0
-    elif colliders.shape[0]:
-        v[0], v[1], v[2] = v0, v1, v2
-        collide_all(colliders, particle_x[p, 0], particle_x[p, 1], particle_x[p, 2], t_new, v, nrm)
-        v0, v1, v2 = v[0], v[1], v[2]
+    else:
+        fx, fy, fz, bx, by, bz = stencil(particle_x, p, origin, inv_dx, wx, wy, wz)
+        v0, v1, v2, b00, b01, b02, b10, b11, b12, b20, b21, b22 = affine_sums(grid, grid1, 1, bx, by, bz, fx, fy, fz,
+                                                                             dx, wx, wy, wz, sided, p, owner, rest_x,
+                                                                             crack_n, piece, half_h)
+        if remapped:
+            o0, o1, o2, a00, a01, a02, a10, a11, a12, a20, a21, a22 = affine_sums(grid, grid1, 4, bx, by, bz, fx, fy,
+                                                                                 fz, dx, wx, wy, wz, sided, p, owner,
+                                                                                 rest_x, crack_n, piece, half_h)
+            v0 += flip * (particle_v[p, 0] - o0)
+            v1 += flip * (particle_v[p, 1] - o1)
+            v2 += flip * (particle_v[p, 2] - o2)
+            g = flip / scale
+            b00 += g * (particle_C[p, 0, 0] - a00 * scale)
+            b01 += g * (particle_C[p, 0, 1] - a01 * scale)
+            b02 += g * (particle_C[p, 0, 2] - a02 * scale)
+            b10 += g * (particle_C[p, 1, 0] - a10 * scale)
+            b11 += g * (particle_C[p, 1, 1] - a11 * scale)
+            b12 += g * (particle_C[p, 1, 2] - a12 * scale)
+            b20 += g * (particle_C[p, 2, 0] - a20 * scale)
+            b21 += g * (particle_C[p, 2, 1] - a21 * scale)
+            b22 += g * (particle_C[p, 2, 2] - a22 * scale)
+        if colliders.shape[0]:
+            v[0], v[1], v[2] = v0, v1, v2
+            collide_all(colliders, particle_x[p, 0], particle_x[p, 1], particle_x[p, 2], t_new, v, nrm)
+            v0, v1, v2 = v[0], v[1], v[2]
     particle_v[p, 0], particle_v[p, 1], particle_v[p, 2] = v0, v1, v2
     particle_C[p, 0, 0], particle_C[p, 0, 1], particle_C[p, 0, 2] = b00 * scale, b01 * scale, b02 * scale
     particle_C[p, 1, 0], particle_C[p, 1, 1], particle_C[p, 1, 2] = b10 * scale, b11 * scale, b12 * scale

@@ -4,7 +4,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from pdmpm_cli.engine.contact import contact_update, overlap_box, surfaces
+from pdmpm_cli.engine.contact import contact_update, meeting_box, overlap_box, surfaces
 from pdmpm_cli.engine.crack import crack_owners
 from pdmpm_cli.engine.fracture import crack_contact, crack_particle_update, inactive_fraction
 from pdmpm_cli.engine.parallel import particle_chunks
@@ -14,6 +14,7 @@ from pdmpm_cli.engine.transfer import advect, g2p, grid_update, p2g, position_bo
 # the crack-field arguments of the transfers for a body with one field (engine/crack.py)
 UNSPLIT = (np.zeros((0, 0, 0), dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64), 0.0,
            np.zeros(6, dtype=np.int64))
+EMPTY = np.zeros(6, dtype=np.int64)  # the node box of a body without particles
 
 
 class CpuBackend:
@@ -23,9 +24,12 @@ class CpuBackend:
 
     def __init__(self):
         self.crack_boxes = []  # per crack body: the node box its cracks split this step (engine/crack.py)
+        self.body_boxes = None  # with a field per body: each body's node box this step (EMPTY: no particles)
+        self.written = {}  # per body field: the node box its last P2G wrote (none yet: the whole grid may hold mass)
 
     def start(self, solver, state):
         solver.a, solver.m = state, solver.model
+        self.written = {}
 
     def sync(self, state):
         """Make the host State current (it always is here)."""
@@ -99,22 +103,53 @@ class CpuBackend:
                         self.cracked(solver, state, f, b.start, b.end)))
         return tuple(out)
 
+    def field_box(self, solver, f: int) -> np.ndarray:
+        """The node box P2G and the grid update cover in field f: with a field per body its body's own box (the
+        field has no mass anywhere else: `clear_outside`), else, and for a crack's far side, solver.box."""
+        if self.body_boxes is None or f >= len(self.body_boxes):
+            return solver.box
+        return self.body_boxes[f]
+
+    def clear_outside(self, grid, f: int, box: np.ndarray):
+        """Zero body field f on the nodes its last P2G wrote outside `box` (all of it the first time), so that every
+        node outside its box holds no mass, as P2G over the union of the bodies' boxes left it: what reads a field
+        outside its body's box (contact, another body's crack particles) finds the same zeros."""
+        old = self.written.get(f)
+        self.written[f] = box
+        if old is None:
+            grid[...] = 0.0
+            return
+        if (old == box).all():
+            return
+        for a in range(3):
+            for lo, hi in ((old[2 * a], min(old[2 * a + 1], box[2 * a])), (max(old[2 * a], box[2 * a + 1]),
+                                                                          old[2 * a + 1])):
+                if lo < hi:
+                    span = [slice(old[0], old[1]), slice(old[2], old[3]), slice(old[4], old[5])]
+                    span[a] = slice(lo, hi)
+                    grid[tuple(span)] = 0.0
+
     def scatter(self, solver, state, dt, with_surfaces: bool):
-        """P2G of every field (and with_surfaces the fields' surfaces for contact) on solver.box; returns the
-        particles off the grid."""
+        """P2G of every field on its box (`field_box`), then (with_surfaces) the fields' surfaces for contact on the
+        nodes where two fields have mass (`contact.meeting_box` of solver.contact_box, which becomes the contact box);
+        returns the particles off the grid."""
         m = solver.model
         outside = 0
-        for f, (grid, s, e, sides, want, cracked) in enumerate(self.fields(solver, state)):
-            box = solver.box
+        fields = self.fields(solver, state)
+        for f, (grid, s, e, sides, want, cracked) in enumerate(fields):
+            box = self.field_box(solver, f)
             if want:  # a crack's far side has mass only on the nodes its cracks split
-                b = solver.box
-                grid[b[0]:b[1], b[2]:b[3], b[4]:b[5]] = 0.0
+                grid[box[0]:box[1], box[2]:box[3], box[4]:box[5]] = 0.0
                 box = sides[-1]
+            elif self.body_boxes is not None:
+                self.clear_outside(grid, f, box)
             n = p2g(state.particle_x[s:e], state.particle_v[s:e], state.particle_C[s:e], m.particle_mass[s:e],
                     state.particle_force[s:e], cracked, m.pin_mask[s:e], dt, m.origin, 1.0 / m.dx, box,
                     state.grid_private, grid, *sides, want)
             outside += 0 if want else n  # a crack side's particles were counted with their body
-            if with_surfaces:
+        if with_surfaces:
+            solver.contact_box = meeting_box(state.grid_field, solver.contact_box)
+            for f, (_, s, e, sides, want, cracked) in enumerate(fields):
                 surfaces(state.particle_x[s:e], m.particle_mass[s:e], cracked, m.origin, 1.0 / m.dx,
                          solver.contact_box, state.grid_surface_private, state.grid_surface[f], *sides, want)
         return outside
@@ -122,9 +157,10 @@ class CpuBackend:
     def p2g(self, solver, state, dt) -> int:
         """The nodes' owners of each crack body (engine/crack.py), then P2G; with a field per body, the contact box
         is `contact.overlap_box` of the fields' boxes (a crack side's: the nodes its cracks split), the only nodes
-        where two fields can have mass."""
+        where two fields can have mass, narrowed after P2G to those where they do (`scatter`)."""
         m = solver.model
         solver.box, boxes = self.node_boxes(solver, state)
+        self.body_boxes = None if boxes is None else [EMPTY if b is None else b for b in boxes]
         self.crack_boxes = [crack_owners(m.bodies[i].start, m.bodies[i].end, state.particle_x, state.particle_crack_s,
                                          state.particle_piece[m.bodies[i].start:m.bodies[i].end], m.origin,
                                          1.0 / m.dx, solver.box, state.grid_owner[c])
@@ -135,8 +171,8 @@ class CpuBackend:
 
     def grid_update(self, solver, state, dt):
         m = solver.model
-        for grid, *_ in self.fields(solver, state):
-            grid_update(grid, dt, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, solver.box,
+        for f, (grid, *_) in enumerate(self.fields(solver, state)):
+            grid_update(grid, dt, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, self.field_box(solver, f),
                         state.time + dt, m.colliders, m.wall_boundary, m.wall_friction)
 
     def contact(self, solver, state, dt):
@@ -161,9 +197,9 @@ class CpuBackend:
         m = solver.model
         t_new = state.time + dt
         self.scatter(solver, state, 0.0, False)
-        for grid, *_ in self.fields(solver, state):
-            grid_update(grid, 0.0, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, solver.box, t_new,
-                        m.colliders, m.wall_boundary, m.wall_friction)
+        for f, (grid, *_) in enumerate(self.fields(solver, state)):
+            grid_update(grid, 0.0, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, self.field_box(solver, f),
+                        t_new, m.colliders, m.wall_boundary, m.wall_friction)
         if solver.plan.contact:
             self.contact(solver, state, 0.0)
         vmax, bad = 0.0, 0

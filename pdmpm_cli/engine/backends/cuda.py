@@ -223,8 +223,8 @@ def surface_kernel(particle_x, particle_mass, particle_crack, origin, inv_dx, bo
         gx = cuda.local.array(4, float64)
         gy = cuda.local.array(4, float64)
         gz = cuda.local.array(4, float64)
-        d_surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, grid_surface, wx, wy, wz, gx, gy,
-                     gz, no_owner, no_rows, no_rows, no_piece, 0.0, no_box, 0)
+        d_surface_at(p, particle_x, particle_mass, particle_crack, origin, inv_dx, grid_surface, box, wx, wy, wz, gx,
+                     gy, gz, no_owner, no_rows, no_rows, no_piece, 0.0, no_box, 0)
 
 
 @cuda.jit

@@ -32,6 +32,7 @@ from pdmpm_cli.engine.kernel import Kernel
 from pdmpm_cli.engine.materials.base import MaterialKind
 from pdmpm_cli.spec import Strict
 
+NO_THETA = np.zeros(0)  # gather_pairs' particle_theta for elastic bodies: no plastic rows
 TINY = 1e-300  # floor of a squared bond length: a zero-length bond gets a finite coefficient times a zero vector
 ROOT_TINY = math.sqrt(TINY)  # floor of a bond length: max(sqrt(x), ROOT_TINY) = sqrt(max(x, TINY)) to the bit
 
@@ -103,9 +104,13 @@ def pair_force_of(has_mu, lam, mu, cp, cq, a, ir, one_ep, le, ly, lz, e0, e1, e2
 
 @njit(cache=True, inline="always")
 def gather_pairs(p, has_mu, has_crack, has_active, has_ep, particle_x, rest_x, bond_start, bond_nbr, bond_wv,
-                 bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, s, nbr):
-    """Rows of s and nbr for the intact bonds p -> q with q > p: eta, Ybar_p = Fbar_p xi, Ybar_q = Fbar_q xi
-    (eta for a crack-surface particle), w V_q, 1 / |xi|, c_q, 1 + e_p and q. Returns their count."""
+                 bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, particle_theta, s,
+                 slot):
+    """Rows 0-12 of s and slot for the intact bonds b = p -> q with q > p: eta, Ybar_p = Fbar_p xi, Ybar_q = Fbar_q xi
+    (eta for a crack-surface particle), w V_q, 1 / |xi|, c_q, e_p (0 without bond_ep) and b; with a particle_theta
+    (plastic bodies: plastic.plastic_forces; empty for elastic ones) also rows 13 and 14, |xi| and theta_q. Returns
+    their count."""
+    with_theta = particle_theta.shape[0] > 0
     r0, r1, r2 = rest_x[p, 0], rest_x[p, 1], rest_x[p, 2]
     p0, p1, p2 = particle_x[p, 0], particle_x[p, 1], particle_x[p, 2]
     f = p if has_mu else 0
@@ -120,8 +125,8 @@ def gather_pairs(p, has_mu, has_crack, has_active, has_ep, particle_x, rest_x, b
             continue
         e0, e1, e2 = particle_x[q, 0] - p0, particle_x[q, 1] - p1, particle_x[q, 2] - p2
         s[0, m], s[1, m], s[2, m] = e0, e1, e2
+        x0, x1, x2 = rest_x[q, 0] - r0, rest_x[q, 1] - r1, rest_x[q, 2] - r2
         if has_mu:
-            x0, x1, x2 = rest_x[q, 0] - r0, rest_x[q, 1] - r1, rest_x[q, 2] - r2
             if p_crack:
                 s[3, m], s[4, m], s[5, m] = e0, e1, e2
             else:
@@ -136,8 +141,10 @@ def gather_pairs(p, has_mu, has_crack, has_active, has_ep, particle_x, rest_x, b
         s[9, m] = bond_wv[b]
         s[10, m] = bond_inv_len[b]
         s[11, m] = particle_coef[q]
-        s[12, m] = 1.0 + bond_ep[b] if has_ep else 1.0
-        nbr[m] = q
+        s[12, m] = bond_ep[b] if has_ep else 0.0
+        if with_theta:
+            s[13, m], s[14, m] = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2), particle_theta[q]
+        slot[m] = b
         m += 1
     return m
 
@@ -163,24 +170,24 @@ def elastic_forces(start, end, lam, mu, particle_x, rest_x, particle_volume, bon
             f[p, 0] = f[p, 1] = f[p, 2] = 0.0
         lo, hi = start + t * n // nt, start + (t + 1) * n // nt
         width = chunk_width(bond_start, lo, hi)
-        s = np.zeros((13, width))  # eta, Ybar_p, Ybar_q (3 each), w V_q, 1 / |xi|, c_q, 1 + e_p
+        s = np.zeros((13, width))  # eta, Ybar_p, Ybar_q (3 each), w V_q, 1 / |xi|, c_q, e_p
         pair = np.zeros((3, width))  # G of each pair
-        nbr = np.zeros(width, dtype=np.int64)
+        slot = np.zeros(width, dtype=np.int64)  # the bond p -> q
         for p in range(lo, hi):
             m = gather_pairs(p, has_mu, has_crack, has_active, has_ep, particle_x, rest_x, bond_start, bond_nbr,
                              bond_wv, bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef,
-                             particle_Fbar, s, nbr)
+                             particle_Fbar, NO_THETA, s, slot)
             cp, vp = particle_coef[p], particle_volume[p]
             for k in range(m):
                 pair[0, k], pair[1, k], pair[2, k] = pair_force(
-                    has_mu, lam, mu, cp, s[11, k], s[9, k] * s[10, k] * vp, s[10, k], s[12, k], s[0, k], s[1, k],
-                    s[2, k], s[3, k], s[4, k], s[5, k], s[6, k], s[7, k], s[8, k])
+                    has_mu, lam, mu, cp, s[11, k], s[9, k] * s[10, k] * vp, s[10, k], 1.0 + s[12, k], s[0, k],
+                    s[1, k], s[2, k], s[3, k], s[4, k], s[5, k], s[6, k], s[7, k], s[8, k])
             f0 = f1 = f2 = 0.0
             for k in range(m):
                 f0 += pair[0, k]
                 f1 += pair[1, k]
                 f2 += pair[2, k]
-                q = nbr[k]
+                q = bond_nbr[slot[k]]
                 f[q, 0] -= pair[0, k]
                 f[q, 1] -= pair[1, k]
                 f[q, 2] -= pair[2, k]
@@ -200,6 +207,22 @@ def sum_forces(start, end, force_private, particle_force):
             particle_force[p, a] = acc
 
 
+@njit(cache=True, inline="always")
+def bond_at(p, q, has_mu, has_crack, p_crack, particle_x, rest_x, particle_crack, particle_Fbar):
+    """|xi|, eta, Ybar_p and Ybar_q of bond p -> q (Ybar = Fbar xi, or eta for a crack-surface particle or where
+    mu = 0): the vectors of one bond in the GPU's forms of the pair passes (`elastic_force_at`,
+    plastic.plastic_force_at)."""
+    x0, x1, x2, r = bond_vector(rest_x, p, q)
+    e0, e1, e2, _ = bond_vector(particle_x, p, q)
+    y0, y1, y2, z0, z1, z2 = e0, e1, e2, e0, e1, e2
+    if has_mu:
+        if not p_crack:
+            y0, y1, y2, _ = averaged_bond(particle_Fbar[p], x0, x1, x2)
+        if not (has_crack and particle_crack[q] != 0):
+            z0, z1, z2, _ = averaged_bond(particle_Fbar[q], x0, x1, x2)
+    return r, e0, e1, e2, y0, y1, y2, z0, z1, z2
+
+
 @njit(cache=True)
 def elastic_force_at(p, lam, mu, particle_x, rest_x, particle_volume, bond_start, bond_nbr, bond_wv, bond_inv_len,
                      bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar, particle_force, force_private):
@@ -214,14 +237,8 @@ def elastic_force_at(p, lam, mu, particle_x, rest_x, particle_volume, bond_start
         if has_active and bond_active[b] == 0:
             continue
         q = bond_nbr[b]
-        x0, x1, x2, _ = bond_vector(rest_x, p, q)
-        e0, e1, e2, _ = bond_vector(particle_x, p, q)
-        y0, y1, y2, z0, z1, z2 = e0, e1, e2, e0, e1, e2
-        if has_mu:
-            if not p_crack:
-                y0, y1, y2, _ = averaged_bond(particle_Fbar[p], x0, x1, x2)
-            if not (has_crack and particle_crack[q] != 0):
-                z0, z1, z2, _ = averaged_bond(particle_Fbar[q], x0, x1, x2)
+        _, e0, e1, e2, y0, y1, y2, z0, z1, z2 = bond_at(p, q, has_mu, has_crack, p_crack, particle_x, rest_x,
+                                                        particle_crack, particle_Fbar)
         one_ep = 1.0 + bond_ep[b] if has_ep else 1.0
         g0, g1, g2 = pair_force(has_mu, lam, mu, cp, particle_coef[q], bond_wv[b] * bond_inv_len[b] * vp,
                                 bond_inv_len[b], one_ep, e0, e1, e2, y0, y1, y2, z0, z1, z2)

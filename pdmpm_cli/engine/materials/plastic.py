@@ -33,11 +33,11 @@ import numpy as np
 from numba import njit, prange
 from pydantic import Field as Doc, model_validator
 
-from pdmpm_cli.engine.bonds import averaged_deformation_at, bond_vector, chunk_width, influence, times_kinv
+from pdmpm_cli.engine.bonds import averaged_deformation_at, bond_vector, chunk_width, fbar_of_rows, influence
 from pdmpm_cli.engine.fields import BOND, PARTICLE, Field
 from pdmpm_cli.engine.kernel import Kernel
 from pdmpm_cli.engine.materials import elastic
-from pdmpm_cli.engine.materials.elastic import ROOT_TINY, averaged_bond, pair_force_of, sum_forces
+from pdmpm_cli.engine.materials.elastic import ROOT_TINY, bond_at, gather_pairs, pair_force_of, sum_forces
 from pdmpm_cli.engine.materials.base import MaterialKind
 from pdmpm_cli.engine.parallel import particle_chunks
 
@@ -109,10 +109,10 @@ def fbar_dilatation(start, end, delta, mu, particle_x, rest_x, particle_volume, 
                     bond_active, particle_Kinv, particle_Fbar, particle_theta, chunks):
     """Fbar_p (eq. 4, where mu > 0; bonds.averaged_deformation) and theta_p (`dilatation_at`) of particles
     start..end-1 from one gather of each family, the CPU's form: a loop gathers xi, eta, w V_q, V_q and whether the
-    bond is intact into contiguous scratch rows; Fbar's sums run over the whole family in bond order, a loop without
-    gathers or sums turns each bond into its two dilatation terms (the square roots and divisions, which the
-    compiler can vectorise), and a last loop sums those of the intact bonds in bond order: to the bit the sums of
-    averaged_deformation and `dilatation_at`."""
+    bond is intact into contiguous scratch rows; Fbar's sums run over the whole family in bond order
+    (bonds.fbar_of_rows, as averaged_deformation), a loop without gathers or sums turns each bond into its two
+    dilatation terms (the square roots and divisions, which the compiler can vectorise), and a last loop sums those
+    of the intact bonds in bond order: to the bit the sums of averaged_deformation and `dilatation_at`."""
     has_active, has_mu = bond_active.shape[0] > 0, mu > 0.0
     n = end - start
     for t in prange(chunks):
@@ -129,21 +129,7 @@ def fbar_dilatation(start, end, delta, mu, particle_x, rest_x, particle_volume, 
                 s[6, k], s[7, k] = bond_wv[b0 + k], particle_volume[q]
                 s[8, k] = 0.0 if has_active and bond_active[b0 + k] == 0 else 1.0
             if has_mu:
-                a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
-                for k in range(m):
-                    w = s[6, k]
-                    x0, x1, x2 = w * s[0, k], w * s[1, k], w * s[2, k]
-                    e0, e1, e2 = s[3, k], s[4, k], s[5, k]
-                    a00 += e0 * x0
-                    a01 += e0 * x1
-                    a02 += e0 * x2
-                    a10 += e1 * x0
-                    a11 += e1 * x1
-                    a12 += e1 * x2
-                    a20 += e2 * x0
-                    a21 += e2 * x1
-                    a22 += e2 * x2
-                times_kinv(p, a00, a01, a02, a10, a11, a12, a20, a21, a22, particle_Kinv, particle_Fbar)
+                fbar_of_rows(p, s, m, particle_Kinv, particle_Fbar)
             for k in range(m):
                 r = math.sqrt(s[0, k] * s[0, k] + s[1, k] * s[1, k] + s[2, k] * s[2, k])
                 l = math.sqrt(s[3, k] * s[3, k] + s[4, k] * s[4, k] + s[5, k] * s[5, k])
@@ -217,44 +203,15 @@ def plastic_forces(start, end, lam, mu, psi, particle_x, rest_x, particle_volume
             f[p, 0] = f[p, 1] = f[p, 2] = 0.0
         lo, hi = start + t * n // nt, start + (t + 1) * n // nt
         width = chunk_width(bond_start, lo, hi)
-        s = np.zeros((15, width))  # eta, Ybar_p, Ybar_q (3 each), w V_q, 1 / |xi|, c_q, e_p, |xi| (then f / psi_p),
-        # theta_q
+        s = np.zeros((15, width))  # elastic.gather_pairs' rows: eta, Ybar_p, Ybar_q (3 each), w V_q, 1 / |xi|, c_q,
+        # e_p, |xi| (then f / psi_p), theta_q
         pair = np.zeros((3, width))  # G of each pair
         slot = np.zeros(width, dtype=np.int64)  # the bond p -> q
         fmax = -1.0
         for p in range(lo, hi):
-            r0, r1, r2 = rest_x[p, 0], rest_x[p, 1], rest_x[p, 2]
-            p0, p1, p2 = particle_x[p, 0], particle_x[p, 1], particle_x[p, 2]
-            fp = p if has_mu else 0
-            a00, a01, a02 = particle_Fbar[fp, 0, 0], particle_Fbar[fp, 0, 1], particle_Fbar[fp, 0, 2]
-            a10, a11, a12 = particle_Fbar[fp, 1, 0], particle_Fbar[fp, 1, 1], particle_Fbar[fp, 1, 2]
-            a20, a21, a22 = particle_Fbar[fp, 2, 0], particle_Fbar[fp, 2, 1], particle_Fbar[fp, 2, 2]
-            p_crack = has_crack and particle_crack[p] != 0
-            m = 0
-            for b in range(bond_start[p], bond_start[p + 1]):
-                q = bond_nbr[b]
-                if q < p or (has_active and bond_active[b] == 0):
-                    continue
-                e0, e1, e2 = particle_x[q, 0] - p0, particle_x[q, 1] - p1, particle_x[q, 2] - p2
-                x0, x1, x2 = rest_x[q, 0] - r0, rest_x[q, 1] - r1, rest_x[q, 2] - r2
-                s[0, m], s[1, m], s[2, m] = e0, e1, e2
-                if has_mu:
-                    if p_crack:
-                        s[3, m], s[4, m], s[5, m] = e0, e1, e2
-                    else:
-                        s[3, m] = a00 * x0 + a01 * x1 + a02 * x2
-                        s[4, m] = a10 * x0 + a11 * x1 + a12 * x2
-                        s[5, m] = a20 * x0 + a21 * x1 + a22 * x2
-                    if has_crack and particle_crack[q] != 0:
-                        s[6, m], s[7, m], s[8, m] = e0, e1, e2
-                    else:
-                        for i in range(3):
-                            s[6 + i, m] = (particle_Fbar[q, i, 0] * x0 + particle_Fbar[q, i, 1] * x1
-                                           + particle_Fbar[q, i, 2] * x2)
-                s[9, m], s[10, m], s[11, m] = bond_wv[b], bond_inv_len[b], particle_coef[q]
-                s[12, m], s[13, m], s[14, m] = bond_ep[b], math.sqrt(x0 * x0 + x1 * x1 + x2 * x2), particle_theta[q]
-                slot[m] = b
-                m += 1
+            m = gather_pairs(p, has_mu, has_crack, has_active, True, particle_x, rest_x, bond_start, bond_nbr, bond_wv,
+                             bond_inv_len, bond_active, bond_ep, particle_crack, particle_coef, particle_Fbar,
+                             particle_theta, s, slot)
             cp, vp, tp = particle_coef[p], particle_volume[p], particle_theta[p]
             for k in range(m):
                 ep, ratio, g0, g1, g2 = returned_force(has_mu, lam, mu, psi, s[13, k], tp, s[14, k], s[12, k], cp,
@@ -311,14 +268,8 @@ def plastic_force_at(p, lam, mu, psi, particle_x, rest_x, particle_volume, bond_
         if has_active and bond_active[b] == 0:
             continue
         q = bond_nbr[b]
-        x0, x1, x2, r = bond_vector(rest_x, p, q)
-        e0, e1, e2, _ = bond_vector(particle_x, p, q)
-        y0, y1, y2, z0, z1, z2 = e0, e1, e2, e0, e1, e2
-        if has_mu:
-            if not p_crack:
-                y0, y1, y2, _ = averaged_bond(particle_Fbar[p], x0, x1, x2)
-            if not (has_crack and particle_crack[q] != 0):
-                z0, z1, z2, _ = averaged_bond(particle_Fbar[q], x0, x1, x2)
+        r, e0, e1, e2, y0, y1, y2, z0, z1, z2 = bond_at(p, q, has_mu, has_crack, p_crack, particle_x, rest_x,
+                                                        particle_crack, particle_Fbar)
         ep, ratio, g0, g1, g2 = returned_force(has_mu, lam, mu, psi, r, tp, particle_theta[q], bond_ep[b], cp,
                                                particle_coef[q], bond_wv[b] * bond_inv_len[b] * vp, bond_inv_len[b],
                                                e0, e1, e2, y0, y1, y2, z0, z1, z2)
