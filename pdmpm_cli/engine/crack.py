@@ -7,15 +7,15 @@ Herbold 2017; Wolper et al. 2019, CD-MPM) gives every node near a crack two velo
 on the side of the crack it lies on; where the fields meet, the multi-field contact of engine/contact.py acts
 (they cannot interpenetrate, they separate freely).
 
-The bonds say where a crack is: each particle's broken bonds (and the bonds a cutout removed) point across it, so
-c_p = sum (X_q - X_p) over them, centred (`crack_normals`), points from p into its crack, in the reference frame.
-At each node the particle with the longest c_p among those whose stencils reach it owns the node; its plane,
-through X_o with normal n_o = c_o / |c_o|, splits the node: particle p is on the far side (field 1) when
-(X_p - X_o) . n_o > h / 2, else on the owner's side (field 0). Once a crack has cut a body in pieces (connected
-over intact bonds), a node that cracked particles of two pieces reach is split by piece instead: the owner's
-piece, and the rest. A node no cracked particle reaches keeps one field. Everything is in the reference frame, so
-the sides do not change as the body deforms. Two fields per node, as in CD-MPM: where cracks cross or branch
-within a node's reach, the strongest one's plane splits it.
+The bonds say where a crack is: each particle's broken bonds (and those a cutout took: through it, or to the
+material it removed) point across it, so c_p = sum (X_q - X_p) over them, centred (`crack_normals`), points from p
+into its crack, in the reference frame. At each node the particle with the longest c_p among those whose stencils
+reach it owns the node; its plane, through X_o with normal n_o = c_o / |c_o|, splits the node: particle p is on the
+far side (field 1) when (X_p - X_o) . n_o > h / 2, else on the owner's side (field 0). Once a crack has cut a
+body in pieces (connected over intact bonds), a node that cracked particles of two pieces reach is split by piece
+instead: the owner's piece, and the rest. A node no cracked particle reaches keeps one field. Everything is in the
+reference frame, so the sides do not change as the body deforms. Two fields per node, as in CD-MPM: where cracks
+cross or branch within a node's reach, the strongest one's plane splits it.
 """
 
 import numpy as np
@@ -29,10 +29,10 @@ PIECE_MIN = 0.05  # nor does one in a piece with less than this share of its bod
 
 @njit(parallel=True, cache=True)
 def crack_normals(start, end, rest_x, bond_start, bond_nbr, bond_active, particle_cut, crack_n, crack_s):
-    """c_p = sum over p's broken and cut bonds (particle_cut: their sum and count) of X_q - X_p, less the share d_p
-    (broken and cut over all) of the sum over all of them (at a surface or an edge the family is lopsided, and a
-    crack takes a lopsided share of it) -> crack_s[p] = |c_p| [m] where d_p >= CRACK_MIN, crack_n[p] = c_p / |c_p|;
-    zero elsewhere."""
+    """c_p = sum over p's broken and cut bonds (particle_cut: their sum and count, rounded) of X_q - X_p, less the
+    share d_p (broken and cut over all) of the sum over all of them (at a surface or an edge the family is lopsided,
+    and a crack takes a lopsided share of it) -> crack_s[p] = |c_p| [m] where d_p >= CRACK_MIN, crack_n[p] =
+    c_p / |c_p|; zero elsewhere."""
     broken = bond_active.shape[0] > 0
     cut = particle_cut.shape[0] > 0
     for p in prange(start, end):
@@ -42,8 +42,8 @@ def crack_normals(start, end, rest_x, bond_start, bond_nbr, bond_active, particl
         if cut:
             c0, c1, c2 = particle_cut[p, 0], particle_cut[p, 1], particle_cut[p, 2]
             a0, a1, a2 = c0, c1, c2
-            nb += int(particle_cut[p, 3])
-            nt += int(particle_cut[p, 3])
+            nb += int(particle_cut[p, 3] + 0.5)
+            nt += int(particle_cut[p, 3] + 0.5)
         for b in range(bond_start[p], bond_start[p + 1]):
             q = bond_nbr[b]
             e0, e1, e2 = rest_x[q, 0] - rest_x[p, 0], rest_x[q, 1] - rest_x[p, 1], rest_x[q, 2] - rest_x[p, 2]

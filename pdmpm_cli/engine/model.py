@@ -65,7 +65,8 @@ class Model:
     # a penalty collider's stiffness scales; (0,) without a penalty collider (engine.colliders.penalties)
     crack_bodies: tuple[int, ...] = ()  # bodies whose cracks and notches split their field in two (engine.crack)
     particle_cut: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (n, 4) sum of X_q - X_p over the
-    # bonds cutouts removed [m] and their count; (0, 4) without cutouts
+    # bonds cutouts removed, those to the material they removed included [m], and their count (fractional: the
+    # removed material counts in eighths; discretize.cut_bonds_through); (0, 4) without cutouts
     emitter: Any = None  # engine.emitter.Emitter of the last body, or None
     flip: float = 0.0  # FLIP share of the G2P update [-]; 0: APIC alone, > 0: FLIP grid and MUSL (transfer.advect_at)
 
