@@ -5,23 +5,18 @@ from numba import njit
 
 
 @njit(cache=True, inline="always")
-def cubic_weight(d):
-    """N(d), the cubic B-spline at an offset d from its node (in cells): one node at a time."""
-    a = abs(d)
-    if a < 1.0:
-        return 0.5 * a * a * a - a * a + 2.0 / 3.0
-    if a < 2.0:
-        t = 2.0 - a
-        return t * t * t / 6.0
-    return 0.0
-
-
-@njit(cache=True, inline="always")
 def cubic_weights(fx, w):
     """Fill w[4] with N(fx - (base + i)) for i = 0..3 and return base = floor(fx) - 1 (fx in cell units)."""
     base = int(np.floor(fx)) - 1
     for i in range(4):
-        w[i] = cubic_weight(fx - (base + i))
+        d = abs(fx - (base + i))
+        if d < 1.0:
+            w[i] = 0.5 * d * d * d - d * d + 2.0 / 3.0
+        elif d < 2.0:
+            t = 2.0 - d
+            w[i] = t * t * t / 6.0
+        else:
+            w[i] = 0.0
     return base
 
 

@@ -18,12 +18,12 @@ import numpy as np
 from numba import njit, prange
 
 from pdmpm_cli.engine.kernel import Kernel
+from pdmpm_cli.engine.parallel import SCRATCH_CHUNKS
 
 PLANE, BOX, SPHERE, CYLINDER, MESH = 0, 1, 2, 3, 4
 STICKY, SLIP, SEPARATE = 0, 1, 2
 BOUNDARY_CODES = {"sticky": STICKY, "slip": SLIP, "separate": SEPARATE}
 ROW = 25
-PENALTY_CHUNKS = 64  # static chunks of the penalty pass
 PENALTY_BACKSTOP = 2.0  # penalty colliders: nodes and particles deeper than this project as before [cells]
 
 
@@ -256,12 +256,12 @@ def penalty_at(p, table, t, dt, wave, skin, pin_mask, particle_x, particle_v, pa
 
 @njit(parallel=True, cache=True)
 def penalties(start, end, table, t, dt, wave, skin, pin_mask, particle_x, particle_v, particle_mass, particle_force):
-    """`penalty_at` for the particles start..end-1 (one body's), in PENALTY_CHUNKS chunks with one normal scratch
+    """`penalty_at` for the particles start..end-1 (one body's), in SCRATCH_CHUNKS chunks with one normal scratch
     each (an allocation per particle cost more than the push)."""
     size = end - start
-    for c in prange(PENALTY_CHUNKS):
+    for c in prange(SCRATCH_CHUNKS):
         n = np.empty(3)
-        for p in range(start + c * size // PENALTY_CHUNKS, start + (c + 1) * size // PENALTY_CHUNKS):
+        for p in range(start + c * size // SCRATCH_CHUNKS, start + (c + 1) * size // SCRATCH_CHUNKS):
             penalty_at(p, table, t, dt, wave, skin, pin_mask, particle_x, particle_v, particle_mass, particle_force,
                        n)
 

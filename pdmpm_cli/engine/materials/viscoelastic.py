@@ -40,10 +40,11 @@ from pydantic import Field as Doc
 from scipy.spatial import cKDTree
 
 from pdmpm_cli.engine.bonds import bond_vector, influence
-from pdmpm_cli.engine.bspline import cubic_weight
 from pdmpm_cli.engine.fields import BOND, PARTICLE, Field
 from pdmpm_cli.engine.kernel import COPY_ROWS, Kernel
 from pdmpm_cli.engine.materials.base import MaterialKind
+from pdmpm_cli.engine.parallel import SCRATCH_CHUNKS
+from pdmpm_cli.engine.transfer import stencil
 from pdmpm_cli.spec import Strict
 
 
@@ -285,26 +286,21 @@ def volume_pressures(start, end, bulk, dt_prev, dt, inv_dx, pin_mask, particle_v
 
 
 @njit(cache=True)
-def grid_volume_ratio_at(p, density, grid, origin, inv_dx, pin_mask, particle_x_prev, particle_J):
+def grid_volume_ratio_at(p, density, grid, origin, inv_dx, pin_mask, particle_x_prev, particle_J, wx, wy, wz):
     """J_p <- min(J_p, density / rho_p), rho_p = sum_i N_i(x_p) m_i / dx^3 the mass density of the last P2G's
     grid at the position it scattered from (x_prev; a particle density correction, one-sided): where the
     particles crowd more than J says, the pressure sees it. Only there: at a free surface or a wall the stencil is
-    part empty and rho_p falls below the density, which must not pull (tension). Pinned particles keep their J."""
+    part empty and rho_p falls below the density, which must not pull (tension). Pinned particles keep their J.
+    wx, wy, wz: scratch for the stencil's weights."""
     if pin_mask.shape[0] > 0 and pin_mask[p] != 0:
         return
-    fx = (particle_x_prev[p, 0] - origin[0]) * inv_dx
-    fy = (particle_x_prev[p, 1] - origin[1]) * inv_dx
-    fz = (particle_x_prev[p, 2] - origin[2]) * inv_dx
-    bx = int(math.floor(fx)) - 1
-    by = int(math.floor(fy)) - 1
-    bz = int(math.floor(fz)) - 1
+    _, _, _, bx, by, bz = stencil(particle_x_prev, p, origin, inv_dx, wx, wy, wz)
     mass = 0.0
     for i in range(4):
-        wi = cubic_weight(fx - (bx + i))
         for j in range(4):
-            wij = wi * cubic_weight(fy - (by + j))
+            wij = wx[i] * wy[j]
             for k in range(4):
-                mass += wij * cubic_weight(fz - (bz + k)) * grid[bx + i, by + j, bz + k, 0]
+                mass += wij * wz[k] * grid[bx + i, by + j, bz + k, 0]
     rho = mass * inv_dx * inv_dx * inv_dx
     if rho * particle_J[p] > density:
         particle_J[p] = density / rho
@@ -312,9 +308,12 @@ def grid_volume_ratio_at(p, density, grid, origin, inv_dx, pin_mask, particle_x_
 
 @njit(parallel=True, cache=True)
 def grid_volume_ratios(start, end, density, grid, origin, inv_dx, pin_mask, particle_x_prev, particle_J):
-    """`grid_volume_ratio_at` for particles start..end-1."""
-    for p in prange(start, end):
-        grid_volume_ratio_at(p, density, grid, origin, inv_dx, pin_mask, particle_x_prev, particle_J)
+    """`grid_volume_ratio_at` for particles start..end-1, in chunks with one set of weight scratch each."""
+    n = end - start
+    for t in prange(SCRATCH_CHUNKS):
+        wx, wy, wz = np.empty(4), np.empty(4), np.empty(4)
+        for p in range(start + t * n // SCRATCH_CHUNKS, start + (t + 1) * n // SCRATCH_CHUNKS):
+            grid_volume_ratio_at(p, density, grid, origin, inv_dx, pin_mask, particle_x_prev, particle_J, wx, wy, wz)
 
 
 SHIFT_STRENGTH = 0.1  # a pair closer than the reach r_s separates by up to 2 x this x r_s per step
@@ -438,7 +437,7 @@ def apply_shifts(start, end, delta, pin_mask, bond_start, bond_nbr, bond_len0, p
 
 
 VOLUME_PRESSURE = Kernel(volume_pressure_at, volume_pressures)
-GRID_VOLUME_RATIO = Kernel(grid_volume_ratio_at, grid_volume_ratios)
+GRID_VOLUME_RATIO = Kernel(grid_volume_ratio_at, grid_volume_ratios, scratch=(("wx", 4), ("wy", 4), ("wz", 4)))
 SHIFT = Kernel(shift_at, shifts)
 APPLY_SHIFT = Kernel(apply_shift_at, apply_shifts)
 INCREMENTAL_DILATATION = Kernel(incremental_dilatation_at, incremental_dilatation)
