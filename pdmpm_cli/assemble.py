@@ -154,6 +154,11 @@ def contact_friction(scene: Scene, cracks: tuple[int, ...] = ()) -> np.ndarray:
     return out[np.ix_(fb, fb)]
 
 
+def wave_speeds(bodies) -> np.ndarray:
+    """(bodies,) each body's P-wave speed [m/s], which scales the penalty pushes of contact and colliders."""
+    return np.array([MATERIALS[b.kind].constants(b.params)["wave_speed"] for b in bodies])
+
+
 def contact_stiffness(scene: Scene, bodies, cracks: tuple[int, ...] = ()) -> np.ndarray:
     """(fields, fields) penalty coefficients stiffness x c^2 [m^2/s^2] (c the pair's larger P-wave speed), zero for
     the projection (contact.model projection, or auto with a FLIP share), -1 between the two sides of a crack (the
@@ -169,7 +174,7 @@ def contact_stiffness(scene: Scene, bodies, cracks: tuple[int, ...] = ()) -> np.
         raise SceneValueError("the penalty contact runs with APIC only (simulation.flip 0): with a FLIP share two "
                               "colliding spheres gained energy (x1.2 at flip 0.95, x4 at 1); set simulation.flip: 0 "
                               "or contact.model: projection", ("contact", "model"))
-    c = np.array([MATERIALS[b.kind].constants(b.params)["wave_speed"] for b in bodies])[fb]
+    c = wave_speeds(bodies)[fb]
     # The faces of a crack lie at the rest spacing, where the penalty would already push them open: the two sides
     # of one body meet by the projection (-1: with the normal across the crack, engine.contact).
     return np.where(sides, -1.0, scene.contact.stiffness * np.maximum.outer(c, c) ** 2)
@@ -185,8 +190,7 @@ def collider_penalty(scene: Scene, bodies) -> np.ndarray:
                               "(auto takes the projection with a FLIP share)", ("simulation", "flip"))
     if not any(penalized(c, flip) for c in scene.colliders):
         return np.zeros(0)
-    c = np.array([MATERIALS[b.kind].constants(b.params)["wave_speed"] for b in bodies])
-    return c**2 / scene.grid.cell_size**2
+    return wave_speeds(bodies) ** 2 / scene.grid.cell_size**2
 
 
 def emitter(scene: Scene, disc: Discretization, bodies) -> Emitter | None:

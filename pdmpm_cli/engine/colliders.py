@@ -6,8 +6,8 @@ objects and every kernel takes the one table:
   9 sign (+1, or -1 inside-out) | 10-12 velocity | 13 boundary (0 sticky, 1 slip, 2 separate) | 14 friction |
   15 rows the collider spans (1, or 1 + its data rows) | 16-18 mesh: distance samples per axis |
   19-21 mesh: first sample's position at time 0 [m] | 22 mesh: sample spacing [m] |
-  23 penalty response: the depth [m] below which the projection backs it up (0: the projection alone) |
-  24 penalty response: its stiffness k [-]
+  23 penalty response: the depth [m] below which the projection backs it up (0: the projection from the surface) |
+  24 penalty response: its stiffness k [-] (0: the projection alone)
 A mesh collider's signed distances follow its header row by row, x slowest, ROW values to a row. The collider moves
 with constant velocity: its centre (or its samples) at time t is the position at 0 + velocity t.
 """
@@ -222,7 +222,7 @@ inlined_signed_distance = njit(cache=True, inline="always")(signed_distance.py_f
 
 @njit(cache=True, inline="always")
 def penalty_at(p, table, t, dt, wave, skin, pin_mask, particle_x, particle_v, particle_mass, particle_force, n):
-    """Particle p against every penalty collider (table[c, 23] > 0): where its centre lies closer than `skin` (half
+    """Particle p against every penalty collider (table[c, 24] > 0): where its centre lies closer than `skin` (half
     its spacing: its material touches) to the surface, an elastic force m_p k c^2 / dx^2 (skin - phi) along the
     normal (k the collider's stiffness, `wave` = c^2 / dx^2 [1/s^2]), whether it approaches or leaves, so the work
     comes back; Coulomb friction up to mu times it against the slip relative to the collider, at most what stops
@@ -233,7 +233,7 @@ def penalty_at(p, table, t, dt, wave, skin, pin_mask, particle_x, particle_v, pa
     c = 0
     while c < table.shape[0]:
         row = table[c]
-        if row[23] > 0.0:
+        if row[24] > 0.0:
             phi = inlined_signed_distance(table, c, particle_x[p, 0], particle_x[p, 1], particle_x[p, 2], t, n)
             if phi < skin:
                 m = particle_mass[p]
