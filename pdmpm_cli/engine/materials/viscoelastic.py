@@ -462,6 +462,68 @@ def lps_stress(p, particle_x, particle_volume, bond_start, bond_nbr, bond_pair_f
     return s
 
 
+@njit(cache=True)
+def pair_lengths(x, pairs):
+    """|x_j - x_i| of each pair (i, j) [m]."""
+    d = np.empty(pairs.shape[0])
+    for e in range(pairs.shape[0]):
+        i, j = pairs[e, 0], pairs[e, 1]
+        a, b, c = x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2]
+        d[e] = math.sqrt(a * a + b * b + c * c)
+    return d
+
+
+@njit(cache=True)
+def merged_rows(bond_start, bond_nbr, len0, rebuilt, pairs, dist):
+    """The CSR of `rebuild_families`, sorted by (p, q): a row not rebuilt is copied, a rebuilt row holds the new
+    pairs (both directions) sorted by q. Returns (start, nbr, src, length): src the old bond a new one carries its
+    values from (-1: a fresh bond, or one that was broken), length the current length of each pair's bond."""
+    n = bond_start.shape[0] - 1
+    count = np.zeros(n, np.int64)
+    for p in range(n):
+        if not rebuilt[p]:
+            count[p] = bond_start[p + 1] - bond_start[p]
+    for e in range(pairs.shape[0]):
+        count[pairs[e, 0]] += 1
+        count[pairs[e, 1]] += 1
+    start = np.zeros(n + 1, np.int64)
+    for p in range(n):
+        start[p + 1] = start[p] + count[p]
+    nbr = np.empty(start[n], np.int32)
+    src = np.full(start[n], -1, np.int64)
+    length = np.zeros(start[n])
+    fill = start[:n].copy()
+    for p in range(n):
+        if not rebuilt[p]:
+            for b in range(bond_start[p], bond_start[p + 1]):
+                nbr[fill[p]] = bond_nbr[b]
+                src[fill[p]] = b
+                fill[p] += 1
+    for e in range(pairs.shape[0]):
+        p, q = pairs[e, 0], pairs[e, 1]
+        nbr[fill[p]], length[fill[p]] = q, dist[e]
+        fill[p] += 1
+        nbr[fill[q]], length[fill[q]] = p, dist[e]
+        fill[q] += 1
+    for p in range(n):
+        if not rebuilt[p]:
+            continue
+        for a in range(start[p] + 1, start[p + 1]):  # insertion sort by q: rows hold a few dozen bonds
+            q, d = nbr[a], length[a]
+            c = a - 1
+            while c >= start[p] and nbr[c] > q:
+                nbr[c + 1], length[c + 1] = nbr[c], length[c]
+                c -= 1
+            nbr[c + 1], length[c + 1] = q, d
+        b, last = bond_start[p], bond_start[p + 1]
+        for a in range(start[p], start[p + 1]):  # both rows sorted: one walk finds the surviving bonds
+            while b < last and bond_nbr[b] < nbr[a]:
+                b += 1
+            if b < last and bond_nbr[b] == nbr[a] and len0[b] > 0.0:
+                src[a] = b
+    return start, nbr, src, length
+
+
 def rebuild_families(particle_x, bond_start, bond_nbr, bond_arrays, ranges, length_name="bond_len0"):
     """Families of the bodies in `ranges` rebuilt from current neighbours; all other bonds kept as they are.
 
@@ -471,44 +533,27 @@ def rebuild_families(particle_x, bond_start, bond_nbr, bond_arrays, ranges, leng
     relocated unchanged. The CSR must be sorted by (p, q) (build_families' order) and stays so."""
     if length_name not in bond_arrays:
         raise KeyError(f"rebuild_families needs the per-bond array {length_name}")
-    n = len(particle_x)
-    src = np.repeat(np.arange(n, dtype=np.int64), np.diff(bond_start))
-    old_keys = src * n + bond_nbr
-    rebuilt = np.zeros(n, dtype=bool)
-    for start, end, _ in ranges:
-        rebuilt[start:end] = True
-    kept = np.flatnonzero(~rebuilt[src])
-    keys = [old_keys[kept]]
-    values = {name: [arr[kept]] for name, arr in bond_arrays.items()}
-    len0 = bond_arrays[length_name]
+    rebuilt = np.zeros(len(particle_x), dtype=np.bool_)
+    found, dists = [np.zeros((0, 2), np.int64)], [np.zeros(0)]
     for start, end, delta in ranges:
+        rebuilt[start:end] = True
         pts = particle_x[start:end]
         pairs = cKDTree(pts).query_pairs(delta, output_type="ndarray").astype(np.int64)
-        d = np.linalg.norm(pts[pairs[:, 1]] - pts[pairs[:, 0]], axis=1)
+        d = pair_lengths(pts, pairs)
         inside = d < delta * (1.0 - 1e-12)
-        pairs, d = pairs[inside] + start, d[inside]
-        new_keys = np.concatenate([pairs[:, 0] * n + pairs[:, 1], pairs[:, 1] * n + pairs[:, 0]])
-        length = np.concatenate([d, d])
-        by_key = np.argsort(new_keys)  # sorted needles: searchsorted walks old_keys forwards, the final sort is a merge
-        new_keys, length = new_keys[by_key], length[by_key]
-        idx = np.minimum(np.searchsorted(old_keys, new_keys), max(len(old_keys) - 1, 0))
-        survive = np.zeros(len(new_keys), dtype=bool)
-        if len(old_keys):
-            survive = (old_keys[idx] == new_keys) & (len0[idx] > 0.0)
-        keys.append(new_keys)
-        for name, arr in bond_arrays.items():
-            fresh = np.zeros((len(new_keys),) + arr.shape[1:], dtype=arr.dtype)
-            fresh[survive] = arr[idx[survive]]
-            if name == length_name:
-                fresh[~survive] = length[~survive]
-            values[name].append(fresh)
-    keys = np.concatenate(keys)
-    order = np.argsort(keys, kind="stable")
-    keys = keys[order]
-    new_start = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(np.bincount(keys // n, minlength=n), out=new_start[1:])
-    new_nbr = (keys % n).astype(np.int32)
-    return new_start, new_nbr, {name: np.concatenate(parts)[order] for name, parts in values.items()}
+        found.append(pairs[inside] + start)
+        dists.append(d[inside])
+    new_start, new_nbr, src, length = merged_rows(bond_start, bond_nbr, bond_arrays[length_name], rebuilt,
+                                                  np.concatenate(found), np.concatenate(dists))
+    carried = src >= 0
+    arrays = {}
+    for name, arr in bond_arrays.items():
+        out = np.zeros((len(src),) + arr.shape[1:], dtype=arr.dtype)
+        out[carried] = arr[src[carried]]
+        if name == length_name:
+            out[~carried] = length[~carried]
+        arrays[name] = out
+    return new_start, new_nbr, arrays
 
 
 def effective_constants(lam: float, mu: float, density: float, bulk: float) -> dict:
