@@ -98,7 +98,7 @@ def test_pulled_bar_breaks_at_its_notch_and_absorbs_at_least_g_c_a():
 @pytest.mark.slow
 @pytest.mark.parametrize("cell", [pytest.param(0.04, marks=pytest.mark.xfail(
     strict=True, reason="0.60 G_c A: the plane cuts remove the ligament's bonds below their critical energy "
-    "(docs/results.md, 'Fracture energy')")), 0.03, 0.02])
+    "(docs/results.md, 'Fracture energy')")), 0.03, 0.02, 0.015])
 def test_pulled_bar_absorbs_g_c_a_at_three_resolutions(cell):
     """The issue's target: the bar absorbs G_c A within 15 % at every resolution (energy balance), with crack fields
     and a full FLIP share (APIC's transfers damp the energy the crack releases: 1.2-1.7 G_c A)."""
