@@ -11,7 +11,8 @@ from pdmpm_cli.assemble import crack_bodies
 from pdmpm_cli.engine.fracture import critical_stretch
 from pdmpm_cli.errors import InputError
 from pdmpm_cli.scene.schema import Scene
-from pdmpm_cli.study.fracture import critical_bond_energy, crossing_energy, plate_scene, pull, slit_drag
+from pdmpm_cli.study.fracture import (GRIP, critical_bond_energy, crossing_energy, damage_band, large_pieces,
+                                      plate_scene, pull, slit_drag)
 from pdmpm_cli.study.sim import Sim
 from tests.test_cli import SMALL, pdmpm
 
@@ -138,6 +139,29 @@ def test_every_face_of_a_narrow_notch_splits_the_grid(cell):
     assert face.sum() > 20 and np.all(sim.state.particle_crack_s[face] > 0)
     assert np.all(into > 0.5)
     assert not sim.state.particle_damage.any()
+
+
+@pytest.mark.parametrize("cell", [0.04, 0.03])
+def test_notched_plate_cracks_from_its_tip_not_along_its_faces(cell):
+    """Issue 19: a single-edge-notched plate pulled in mode I (notch half a cell wide) comes apart from the notch's
+    tip, with no damaged particle along the notch's faces more than a horizon behind the tip (bench/notched_plate.py's
+    definition). At 0.04 m crack owners ahead of the tip put a face's first layer on the far field unless a face
+    particle takes its side from its own direction; at 0.03 m the planes of clusters at the tip reached back over
+    the faces unless a cut leaves the bonds along a cutout's face (docs/method.md, 'Fracture'; results.md)."""
+    sim = Sim(plate_scene(cell, G_C, notch=0.12))
+    state, model = sim.state, sim.model
+    while state.time < 0.3 - 1e-12:
+        sim.solver.advance(state, min(state.time + sim.plan.frame_dt, 0.3))
+        if state.bonds_cut and large_pieces(state, model) >= 2:
+            break
+    size = model.rest_x[:, 1].max() - model.rest_x[:, 1].min()
+    band = damage_band(model, state, grip=GRIP * size, notch=0.12)
+    h = model.bodies[0].spacing
+    print(f"\ncell {cell}: apart at {state.time:.3f} s, {band['at_faces']} damaged along the notch, reach "
+          f"{band['reach']:.3f} m, band p90 {band['p90'] / h:.1f} h")
+    assert large_pieces(state, model) == 2 and band["reach"] > 0.45
+    assert band["at_faces"] == 0
+    assert band["p90"] < 6 * h
 
 
 def test_a_closed_slit_still_carries_compression():
