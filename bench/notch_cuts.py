@@ -93,7 +93,8 @@ def main():
                 n_ /= np.linalg.norm(n_)
                 r = np.sqrt(((particle_x[mem] - particle_x[mem].mean(axis=0)) ** 2).sum(axis=1).max())
                 print(f"t={state.time:.4f} (tip's first cut {first['t']:.4f}) cluster of {len(mem)} at "
-                      f"x={c[0]-edge:.3f} y={(c[1]-mid)/h:+.2f}h radius {r/h:.2f}h normal {np.round(n_, 2).tolist()} top bond "
+                      f"x={c[0]-edge:.3f} y={(c[1]-mid)/h:+.2f}h radius {r/h:.2f}h "
+                      f"normal {np.round(n_, 2).tolist()} top bond "
                       f"{top}->{q} rest ({x[top,0]-edge:.3f},{(x[top,1]-mid)/h:+.2f}h)->({x[q,0]-edge:.3f},"
                       f"{(x[q,1]-mid)/h:+.2f}h) l/thr={lmax[top]/threshold:.3f} cut {cut}, damaging along the "
                       f"notch {len(bad)}: x {np.round(x[bad,0]-edge, 3).tolist()} "
