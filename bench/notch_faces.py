@@ -44,7 +44,8 @@ def main():
     rest = np.linalg.norm(x[nbr] - x[own], axis=1)
     clusters = []
 
-    def update(threshold, delta, start, end, particle_x, rest_x, bond_start, bond_nbr, bond_active, lmax, bmax):
+    def update(threshold, delta, start, end, particle_x, rest_x, bond_start, bond_nbr, bond_active, lmax, bmax,
+               particle_cut=None):
         cand = start + np.flatnonzero((lmax[start:end] > threshold) & (bmax[start:end] >= 0))
         if len(cand) == 0:
             return 0
@@ -56,7 +57,7 @@ def main():
             mem = cand[labels == k]
             before = bond_active.copy()
             cut = cut_clusters(delta, mem, np.array([0, len(mem)], dtype=np.int64), particle_x, bond_start,
-                               bond_nbr, lmax, bmax, bond_active)
+                               bond_nbr, lmax, bmax, bond_active, rest_x, model.particle_cut)
             total += cut
             on_faces = int(np.count_nonzero(faces & (before == 1) & (bond_active == 0)))
             if on_faces:

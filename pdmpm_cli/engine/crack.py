@@ -31,19 +31,22 @@ PIECE_MIN = 0.05  # nor does one in a piece with less than this share of its bod
 def crack_normals(start, end, rest_x, bond_start, bond_nbr, bond_active, particle_cut, crack_n, crack_s):
     """c_p = sum over p's broken and cut bonds (particle_cut: their sum and count, rounded) of X_q - X_p, less the
     share d_p (broken and cut over all) of the sum over all of them (at a surface or an edge the family is lopsided,
-    and a crack takes a lopsided share of it) -> crack_s[p] = |c_p| [m] where d_p >= CRACK_MIN, crack_n[p] =
-    c_p / |c_p|; zero elsewhere."""
+    and a crack takes a lopsided share of it) -> crack_s[p] = |c_p| [m] where d_p >= CRACK_MIN, crack_n[p, :3] =
+    c_p / |c_p| and crack_n[p, 3] = 1 where they are all cut (a cutout's face: no bond of p broken), else 0; zero
+    elsewhere."""
     broken = bond_active.shape[0] > 0
     cut = particle_cut.shape[0] > 0
     for p in prange(start, end):
         c0 = c1 = c2 = 0.0
         a0 = a1 = a2 = 0.0  # sum over the whole family, cut bonds included
         nb, nt = 0, bond_start[p + 1] - bond_start[p]
+        nc = 0  # of them cut
         if cut:
             c0, c1, c2 = particle_cut[p, 0], particle_cut[p, 1], particle_cut[p, 2]
             a0, a1, a2 = c0, c1, c2
-            nb += int(particle_cut[p, 3] + 0.5)
-            nt += int(particle_cut[p, 3] + 0.5)
+            nc = int(particle_cut[p, 3] + 0.5)
+            nb += nc
+            nt += nc
         for b in range(bond_start[p], bond_start[p + 1]):
             q = bond_nbr[b]
             e0, e1, e2 = rest_x[q, 0] - rest_x[p, 0], rest_x[q, 1] - rest_x[p, 1], rest_x[q, 2] - rest_x[p, 2]
@@ -56,7 +59,7 @@ def crack_normals(start, end, rest_x, bond_start, bond_nbr, bond_active, particl
                 c1 += e1
                 c2 += e2
         crack_s[p] = 0.0
-        crack_n[p, 0] = crack_n[p, 1] = crack_n[p, 2] = 0.0
+        crack_n[p, 0] = crack_n[p, 1] = crack_n[p, 2] = crack_n[p, 3] = 0.0
         if nb == 0 or nb < CRACK_MIN * nt:
             continue
         d = nb / nt
@@ -65,6 +68,7 @@ def crack_normals(start, end, rest_x, bond_start, bond_nbr, bond_active, particl
         if s > 0.0:
             crack_s[p] = s
             crack_n[p, 0], crack_n[p, 1], crack_n[p, 2] = c0 / s, c1 / s, c2 / s
+            crack_n[p, 3] = 1.0 if nb == nc else 0.0
 
 
 @njit(cache=True)

@@ -51,9 +51,9 @@ CONTACT = (
 )
 # Crack fields (engine/crack.py, contact.cracks: separate): a body's cracks and notches split its grid field in two.
 CRACK_SIDES = (
-    Field("particle_crack_n", PARTICLE, (3,), transient=True,
+    Field("particle_crack_n", PARTICLE, (4,), transient=True,
           doc="unit direction from the particle into its crack or notch, in the reference frame [-]; 0: none "
-              "(recomputed when bonds break and when a State is bound)"),
+              "(recomputed when bonds break and when a State is bound); then 1 where it is a cutout's alone"),
     Field("particle_crack_s", PARTICLE, transient=True, doc="length of the summed X_q - X_p of its broken and cut "
           "bonds [m]: the node's owner is the particle with the largest"),
     Field("particle_dust", PARTICLE, dtype="u1", transient=True,

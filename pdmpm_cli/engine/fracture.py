@@ -20,10 +20,10 @@ from scipy.sparse.csgraph import connected_components
 from pdmpm_cli.engine.bonds import bond_vector
 from pdmpm_cli.engine.colliders import collide_all, push_out
 from pdmpm_cli.engine.kernel import Kernel
-from pdmpm_cli.engine.transfer import particle_speed, stencil_on_grid, stencil_with_gradients
+from pdmpm_cli.engine.transfer import SAME_CRACK_COS, particle_speed, stencil_on_grid, stencil_with_gradients
 
 CONTACT_DAMAGE = 0.5  # crack particles with at least this damage (mostly detached) take part in grid contact
-SPLIT_COS = math.cos(math.pi / 4.0)  # candidates whose bonds open in directions > 45 degrees apart: two cracks
+SPLIT_COS = SAME_CRACK_COS  # candidates whose bonds open in directions > 45 degrees apart: two cracks
 
 
 def critical_stretch(energy: float, modulus: float, horizon: float) -> float:
@@ -187,13 +187,30 @@ def mark(u, tag, stamp, near, count):
     return count
 
 
+@njit(cache=True, inline="always")
+def sliver(particle_cut, p, sp, n0, n1, n2):
+    """Whether particle p, at signed distance sp from a cut's plane with unit normal n (in the reference frame), has a
+    cutout within 45 degrees of n on its far side from the plane (particle_cut[p, :3] points from p into it): cutting
+    p's bonds across the plane would cut a second crack along the cutout's face, less than a horizon from it, which
+    a free face's zero normal stress does not open (where the plane of a cluster at a notch's tip reaches back over
+    the faces)."""
+    c0, c1, c2 = particle_cut[p, 0], particle_cut[p, 1], particle_cut[p, 2]
+    a = c0 * n0 + c1 * n1 + c2 * n2
+    m = SPLIT_COS * math.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+    return m > 0.0 and abs(a) >= m and (a < 0.0) == (sp < 0.0)
+
+
 @njit(cache=True)
 def cut_clusters(delta, members, cluster_start, particle_x, bond_start, bond_nbr, particle_lmax, particle_bmax,
-                 bond_active):
+                 bond_active, rest_x, particle_cut):
     """Plane cut of each cluster (section 6) -> bond_active; returns the number of undirected bonds cut.
 
     Clusters run in order and see the cuts of the ones before: a cluster whose most deformed bond is
-    already broken is skipped, so each crack is cut once per call and re-evaluated at the next one."""
+    already broken is skipped, so each crack is cut once per call and re-evaluated at the next one.
+    particle_cut (n, 4): per particle the sum of X_q - X_p over the bonds a cutout took and their count (discretize;
+    (0, 4) without cutouts): a bond is left when one of its ends has a cutout within 45 degrees of the plane's normal
+    (in the reference frame, rest_x's) on its far side from the plane (`sliver`)."""
+    sided = particle_cut.shape[0] > 0
     stamp = np.zeros(particle_x.shape[0], np.int64)
     near = np.empty(particle_x.shape[0], np.int64)
     c = np.empty(3)
@@ -211,6 +228,8 @@ def cut_clusters(delta, members, cluster_start, particle_x, bond_start, bond_nbr
         if ln == 0.0:  # its ends coincide (both pushed onto one collider point): no direction to cut along yet
             continue
         n0, n1, n2 = n0 / ln, n1 / ln, n2 / ln
+        r0, r1, r2, rl = bond_vector(rest_x, top, bond_nbr[b0])
+        r0, r1, r2 = r0 / rl, r1 / rl, r2 / rl
         c[:] = 0.0
         for p in mem:
             c += particle_x[p]
@@ -237,6 +256,8 @@ def cut_clusters(delta, members, cluster_start, particle_x, bond_start, bond_nbr
                 sq = side(particle_x, q, c, n0, n1, n2)
                 if (sp < 0.0) == (sq < 0.0):
                     continue
+                if sided and (sliver(particle_cut, p, sp, r0, r1, r2) or sliver(particle_cut, q, sq, r0, r1, r2)):
+                    continue
                 t = sp / (sp - sq)
                 d = 0.0
                 for a in range(3):
@@ -247,7 +268,7 @@ def cut_clusters(delta, members, cluster_start, particle_x, bond_start, bond_nbr
 
 
 def fracture_update(threshold, delta, start, end, particle_x, rest_x, bond_start, bond_nbr, bond_active,
-                    particle_lmax, particle_bmax) -> int:
+                    particle_lmax, particle_bmax, particle_cut=None) -> int:
     """Cluster the candidates of one body (particles start..end-1) and cut each cluster's fracture plane.
 
     Reads particle_lmax / particle_bmax from bond_criterion; updates bond_active in place (section 6).
@@ -262,7 +283,8 @@ def fracture_update(threshold, delta, start, end, particle_x, rest_x, bond_start
     cluster_start = np.zeros(n_clusters + 1, dtype=np.int64)
     np.cumsum(np.bincount(labels, minlength=n_clusters), out=cluster_start[1:])
     return cut_clusters(delta, cand[order], cluster_start, particle_x, bond_start, bond_nbr, particle_lmax,
-                        particle_bmax, bond_active)
+                        particle_bmax, bond_active, rest_x,
+                        np.zeros((0, 4)) if particle_cut is None else particle_cut)
 
 
 def pieces(bond_start, bond_nbr, intact, start: int, end: int) -> np.ndarray:

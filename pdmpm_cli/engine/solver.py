@@ -212,7 +212,7 @@ class Solver:
             for b in candidates:
                 cut += fracture_update(b.fracture.threshold, b.horizon, b.start, b.end, state.particle_x,
                                        self.model.rest_x, state.bond_start, state.bond_nbr, state.bond_active,
-                                       state.particle_lmax, state.particle_bmax)
+                                       state.particle_lmax, state.particle_bmax, self.model.particle_cut)
             if cut:
                 damage(state.bond_start, state.bond_active, state.particle_damage, state.particle_crack)
                 self.crack_sides(state)

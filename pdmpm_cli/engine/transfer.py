@@ -15,6 +15,8 @@ from numba import njit, prange
 from pdmpm_cli.engine.bspline import cubic_weights, cubic_weights_grad
 from pdmpm_cli.engine.colliders import collide_all, push_out, respond
 
+SAME_CRACK_COS = math.cos(math.pi / 4.0)  # crack directions within 45 degrees: one crack (fracture.SPLIT_COS)
+
 WALL = 3  # nodes within this many cells of the domain edge act as walls; particles stay >= 1 cell inside
 CHANNELS = 4  # a grid node: mass, then momentum (P2G) / velocity (after the grid update)
 FLIP_CHANNELS = 7  # with a FLIP share: then the force impulse (P2G) / the velocity before the update, v_I^n
@@ -70,13 +72,21 @@ def stencil_off_box(particle_x, p, origin, inv_dx, box):
 def node_side(p, o, rest_x, crack_n, piece, half_h):
     """Field of particle p at a node that particle o's crack splits (engine/crack.py: o = -1 not split; o <= -2 the
     node sees two pieces and particle -o - 2 owns it): 1 in another piece than the owner's, or in the same one beyond
-    its crack plane where the node sees one piece; else 0."""
+    its crack where the node sees one piece; else 0. Beyond it: a particle whose crack is a cutout's alone (a notch's
+    face, crack_n[p, 3] = 1) and parallel to the owner's (within 45 degrees, as fracture.SPLIT_COS clusters) when the
+    two point opposite ways, as CD-MPM sides particles by their damage gradients: the owner's plane need not run
+    along the face (an owner ahead of a notch's tip, its crack a spacing or two off the notch's plane, reaches back
+    over the faces); any other, when it lies beyond the owner's plane."""
     if o == -1:
         return 0
     if o <= -2:
         return 0 if piece[p] == piece[-o - 2] else 1
     if piece[p] != piece[o]:
         return 1
+    if crack_n[p, 3] != 0.0:
+        a = crack_n[p, 0] * crack_n[o, 0] + crack_n[p, 1] * crack_n[o, 1] + crack_n[p, 2] * crack_n[o, 2]
+        if abs(a) >= SAME_CRACK_COS:
+            return 1 if a < 0.0 else 0
     d = ((rest_x[p, 0] - rest_x[o, 0]) * crack_n[o, 0] + (rest_x[p, 1] - rest_x[o, 1]) * crack_n[o, 1]
          + (rest_x[p, 2] - rest_x[o, 2]) * crack_n[o, 2])
     return 1 if d > half_h else 0

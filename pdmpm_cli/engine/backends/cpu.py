@@ -12,7 +12,7 @@ from pdmpm_cli.engine.transfer import advect, g2p, grid_update, p2g, position_bo
 
 
 # the crack-field arguments of the transfers for a body with one field (engine/crack.py)
-UNSPLIT = (np.zeros((0, 0, 0), dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64), 0.0,
+UNSPLIT = (np.zeros((0, 0, 0), dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 4)), np.zeros(0, dtype=np.int64), 0.0,
            np.zeros(6, dtype=np.int64))
 EMPTY = np.zeros(6, dtype=np.int64)  # the node box of a body without particles
 
