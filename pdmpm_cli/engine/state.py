@@ -72,15 +72,16 @@ class State:
 
     @classmethod
     def allocate(cls, fields: dict[str, Field], shapes: dict[str, tuple], initial: dict[str, np.ndarray]) -> State:
-        """Allocate the Plan's arrays: `shapes` gives each one's full shape, `initial` the values of some (positions,
-        velocities, the families); the rest start at their declared fill value."""
+        """Allocate the Plan's arrays: `shapes` gives each one's full shape and dtype (the Plan's, which follows
+        simulation.precision), `initial` the values of some (positions, velocities, the families); the rest start at
+        their declared fill value."""
         arrays = {}
-        for name, shape in shapes.items():
+        for name, (shape, dtype) in shapes.items():
             f = fields[name]
             if name in initial:
-                arrays[name] = np.array(initial[name], dtype=f.dtype, copy=True).reshape(shape)
+                arrays[name] = np.array(initial[name], dtype=dtype, copy=True).reshape(shape)
             else:
-                arrays[name] = np.full(shape, f.fill, dtype=f.dtype)
+                arrays[name] = np.full(shape, f.fill, dtype=dtype)
         return cls(fields, arrays)
 
 

@@ -460,6 +460,16 @@ class Simulation(Strict):
                            "every material and fracture; not an emitter). `pdmpm run --backend` overrides it."
     )
 
+    precision: Literal["float64", "float32"] = Field(
+        "float64",
+        description="Storage precision of the per-particle and per-bond arrays [-]. float32 halves the bytes of "
+                    "velocities, APIC matrices, forces and every bond array (the reference bond factors, plastic "
+                    "strains, viscoelastic bond forces), which the bond passes stream; positions, Fbar, a liquid's "
+                    "volume ratio, the grids, energies and sums stay float64 (a step's move v dt is below float32's "
+                    "resolution of a position), and kernels compute in float64. docs/method.md, 'Precision', and "
+                    "docs/results.md, 'float32', have its speed and error."
+    )
+
     @field_validator("fps")
     @classmethod
     def _frames(cls, fps: float, info: ValidationInfo) -> float:

@@ -640,14 +640,15 @@ KIND = MaterialKind(
     start=init_state, born=born, with_flow_speed=with_flow_speed,
     outputs={"particle_J": volume_ratio},
     fields=(
-        Field("particle_J", PARTICLE, fill=1.0, doc="volume ratio J = V / V0 from the grid velocity gradient [-]"),
+        Field("particle_J", PARTICLE, fill=1.0, precise=True,
+              doc="volume ratio J = V / V0 from the grid velocity gradient [-]"),
         Field("bond_len0", BOND, doc="formation length of each bond [m] (< 0: broken)"),
         Field("bond_force_el", BOND, doc="non-relaxing pair force [N/m^6]"),
         Field("bond_force_visc", BOND, doc="relaxing pair force [N/m^6]"),
         Field("particle_m", PARTICLE, doc="LPS weighted volume [m^5]"),
         Field("particle_dtheta", PARTICLE, transient=True, doc="incremental dilatation of the step [-]"),
-        Field("particle_x_prev", PARTICLE, (3,), doc="positions at the previous force evaluation [m]"),
-        Field("particle_x_rebuild", PARTICLE, (3,), doc="positions at the last family rebuild [m]"),
+        Field("particle_x_prev", PARTICLE, (3,), precise=True, doc="positions at the previous force evaluation [m]"),
+        Field("particle_x_rebuild", PARTICLE, (3,), precise=True, doc="positions at the last family rebuild [m]"),
         Field("particle_shift", PARTICLE, (3,), transient=True, doc="particle shift of the step [m]"),
     ),
 )
