@@ -101,3 +101,14 @@ def test_float32_on_cuda_simulator_matches_the_cpu(tmp_path):
         assert gpu.frame(f)["particle_v"].dtype == np.float32
         np.testing.assert_allclose(gpu.frame(f)["particle_x"], cpu.frame(f)["particle_x"], rtol=0, atol=1e-8)
         np.testing.assert_allclose(gpu.frame(f)["particle_v"], cpu.frame(f)["particle_v"], rtol=0, atol=1e-6)
+
+
+@pytest.mark.slow
+def test_float32_kernels_compile_for_an_h100():
+    """What the simulator cannot check (tests/test_cuda.py's PTX test, at float32): every kernel the CUDA backend
+    launches compiles to PTX for sm_90 with float32 particle and bond arrays (needs NVVM; skipped without it)."""
+    r = python("-m", "tests.cuda_ptx", "--precision", "float32", sim=False)
+    if r.returncode == 3:
+        pytest.skip(r.stderr.strip())
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert len([line for line in r.stdout.splitlines() if line.endswith("characters of PTX")]) == 27
