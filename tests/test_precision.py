@@ -21,15 +21,18 @@ SINGLE = {"simulation": {"precision": "float32"}}
 
 def test_float32_arrays_and_free_fall(sim_factory):
     """A jittered sphere falls 0.3 s: its centre of mass within g t dt_max of the parabola (symplectic Euler's
-    first-order error, the float64 test's bound) and every particle at -g t to float32's round-off."""
+    first-order error, the float64 test's bound) and every particle at -g t to float32's round-off over its 300
+    steps."""
     sim = sim_factory(merge(SINGLE, {
         "gravity": [0, -9.81, 0], "grid": {"domain": {"min": [0, -1, 0], "max": [1, 1, 1]}},
         "bodies": [{**sim_factory().scene.bodies[0].model_dump(),
                     "geometry": {"mode": "cloud", "sampling": "jittered",
                                  "shape": {"type": "sphere", "center": [0.5, 0.6, 0.5], "radius": 0.1}}}]}))
     dtypes = {name: a.dtype.str for name, a in sim.state.arrays.items()}
-    assert {dtypes[n] for n in ("particle_v", "particle_C", "particle_force", "bond_wv", "bond_inv_len")} == {"<f4"}
-    assert {dtypes[n] for n in ("particle_x", "particle_Fbar", "grid", "grid_private")} == {"<f8"}
+    assert {dtypes[n] for n in ("particle_v", "particle_C", "particle_force", "bond_wv")} == {"<f4"}
+    assert {dtypes[n] for n in ("particle_x", "particle_Fbar", "bond_inv_len", "grid", "grid_private")} == {"<f8"}
+    sim.solver.bond_forces(0.0)  # force-free at rest: K_p sums the stored (rounded) weights, 1 / |xi| is float64
+    assert np.abs(sim.state.particle_force).max() < 1e-12 * 3e5 * sim.model.body_spacing[0] ** 2
     assert sim.plan.precision == "float32" and sim.plan.fields["particle_v"][1] == "f4"
     y0 = sim.com()[1]
     dts = []
@@ -37,7 +40,7 @@ def test_float32_arrays_and_free_fall(sim_factory):
     err = sim.com()[1] - (y0 - 0.5 * 9.81 * 0.3**2)
     print(f"\nfloat32 free fall: y_com - exact = {err:.3e} m (bound {9.81 * 0.3 * max(dts):.3e})")
     assert abs(err) <= 9.81 * 0.3 * max(dts)
-    np.testing.assert_allclose(sim.state.particle_v[:, 1], -9.81 * 0.3, rtol=2e-5)
+    np.testing.assert_allclose(sim.state.particle_v[:, 1], -9.81 * 0.3, rtol=5e-5)  # float32 rounding, 300 steps
 
 
 def test_float32_vibrating_bar_keeps_its_period(sim_factory):

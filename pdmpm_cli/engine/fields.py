@@ -85,7 +85,7 @@ CRACK_SIDES = (
 # Reference bond factors, computed once: the Fbar pass and the pair pass read them.
 BOND_FACTORS = (
     Field("bond_wv", BOND, doc="w(|xi|) V_q, eq. 4's weight times the neighbour's volume [m^3]"),
-    Field("bond_inv_len", BOND, doc="1 / |xi| [1/m]"),
+    Field("bond_inv_len", BOND, precise=True, doc="1 / |xi| [1/m]"),
 )
 FBAR = (Field("particle_Fbar", PARTICLE, (3, 3), transient=True, stand_in=1, precise=True,
               doc="averaged deformation gradient (eq. 4) [-]; read only where mu > 0"),) + BOND_FACTORS

@@ -642,7 +642,7 @@ KIND = MaterialKind(
     fields=(
         Field("particle_J", PARTICLE, fill=1.0, precise=True,
               doc="volume ratio J = V / V0 from the grid velocity gradient [-]"),
-        Field("bond_len0", BOND, doc="formation length of each bond [m] (< 0: broken)"),
+        Field("bond_len0", BOND, precise=True, doc="formation length of each bond [m] (< 0: broken)"),
         Field("bond_force_el", BOND, doc="non-relaxing pair force [N/m^6]"),
         Field("bond_force_visc", BOND, doc="relaxing pair force [N/m^6]"),
         Field("particle_m", PARTICLE, doc="LPS weighted volume [m^5]"),
