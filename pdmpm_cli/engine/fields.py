@@ -7,13 +7,16 @@ Precision (simulation.precision): with float32 the Plan stores the per-particle 
 precision (`Field.dtype_for`), except those declared `precise`, whose values float32 would spoil. Positions: a step
 moves a particle by v dt, 1e-6 to 1e-5 m, while float32 spaces values 6e-8 m apart at 0.5-1 m and 1.2e-7 m at 1-2 m,
 so each step's move would be rounded by 1-10 %, and the bond vector x_q - x_p of a 2 cm bond at 2 m from the origin
-would carry 6e-6 of round-off, the order of an elastic strain. Fbar is I plus a strain of 1e-6 to 1e-3, and a
-liquid's volume ratio J grows by 1e-6 of itself per step: all three are kept. The bond factors (w V_q, 1 / |xi|) and
-a liquid's formation lengths are float32: rounded, they leave a body at rest a residual strain of float32's
-round-off (its bond forces 3e-9 of M h^2 on the test cube, 2e-16 in float64; 6e-9 with 1 / |xi| in float64, as the
-rounded weights alone do the same through Fbar), far below any strain a scene resolves. The grids stay float64 (P2G
-sums every particle's mass and momentum into them), and kernels compute in float64 (a float32 value is widened where
-it is read): float32 is a storage format, so one kernel serves both precisions."""
+would carry 6e-6 of round-off, the order of an elastic strain. 1 / |xi| (a liquid's formation length) is what a
+bond's stretch |eta| / |xi| - 1 is measured from: rounded, it leaves a body at rest a strain of 3e-8 and bond forces
+that are not zero. w V_q is float32, and K_p (the Model's, float64) sums the same rounded weights
+(assemble.build_model), so Fbar at rest is I to float64's round-off: with both, a body at rest has float64's bond
+forces (zero to round-off for a solid; the tiny cloth_pegs, whose shell regularises K_p: 5.8e-5 of a particle's
+weight in both precisions, 5.4e-3 with both factors rounded). Fbar is I plus a strain of 1e-6 to 1e-3, and a
+liquid's volume ratio J grows by 1e-6 of itself per step: both are kept. The grids stay float64 (P2G sums every
+particle's mass and momentum into them; a float32 grid made P2G and G2P slower, docs/results.md), and kernels
+compute in float64 (a float32 value is widened where it is read): float32 is a storage format, so one kernel serves
+both precisions."""
 
 from dataclasses import dataclass
 
