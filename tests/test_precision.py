@@ -1,7 +1,8 @@
 """simulation.precision: float32 stores the per-particle and per-bond arrays in single precision (engine/fields.py,
 Field.dtype_for), keeping positions, 1 / |xi|, Fbar and the grids in float64. Answers from physics: a body at rest
-free of bond forces, a free fall against the parabola, Sulsky's bar against its analytic period; a checkpoint resumes bitwise at float32 and refuses another
-precision; the CUDA backend (numba's simulator) runs float32 as the CPU does."""
+free of bond forces, a free fall against the parabola, Sulsky's bar against its analytic period; a checkpoint
+resumes bitwise at float32 and refuses another precision; the CUDA backend (numba's simulator) runs float32 as the
+CPU does."""
 
 import numpy as np
 import pytest
