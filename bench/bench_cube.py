@@ -1,12 +1,14 @@
 """Throughput of the full step on an elastic cube: particle-steps/s and bond-updates/s per size.
 
 Usage: python bench/bench_cube.py [--sizes 32000 128000 512000] [--steps 20] [--taichi] [--horizon 2.0] [--cpu-time]
+                                  [--precision float64|float32]
 Prints one markdown table (for docs/results.md): per size the step time, particle-steps/s, the bond pass's
 bond-updates/s (directed bonds over the Fbar and force phases together, and over the force phase alone), the
 per-phase split of the step time, memory per particle and the cost per particle-step relative to the smallest
 size; with --taichi (pip install taichi) also a plain Taichi MLS-MPM step on the same cube without bonds
 (bench/taichi_cube.py, f32 and f64) and our ratio to it. --horizon sets delta / h (default 2, about 33 bonds per
 particle), to compare with a scene of another horizon (bench/table1_suite.py) at the same bonds per particle.
+--precision sets simulation.precision (docs/results.md, 'float32').
 """
 
 import argparse
@@ -22,14 +24,14 @@ from pdmpm_cli.runner import prepare_scene, start_in_memory
 from pdmpm_cli.scene.schema import Scene
 
 
-def cube_scene(n_target: int, horizon: float = 2.0) -> Scene:
+def cube_scene(n_target: int, horizon: float = 2.0, precision: str = "float64") -> Scene:
     """A jittered elastic cube of about n_target particles (8 per cell, delta = horizon h), free in space."""
     h = 0.01
     side = h * round(n_target ** (1 / 3))
     dx = 2 * h
     pad = 6 * dx
     return Scene.model_validate({
-        "simulation": {"duration": 1.0, "fps": 10},
+        "simulation": {"duration": 1.0, "fps": 10, "precision": precision},
         "grid": {"cell_size": dx, "domain": {"min": [0, 0, 0], "max": [side + 2 * pad] * 3}},
         "gravity": [0, 0, 0],
         "bodies": [{"name": "cube",
@@ -40,8 +42,9 @@ def cube_scene(n_target: int, horizon: float = 2.0) -> Scene:
     })
 
 
-def bench(n_target: int, steps: int, clock=time.perf_counter, horizon: float = 2.0) -> dict:
-    prep = prepare_scene(cube_scene(n_target, horizon), "bench.yaml")
+def bench(n_target: int, steps: int, clock=time.perf_counter, horizon: float = 2.0, precision: str = "float64"
+          ) -> dict:
+    prep = prepare_scene(cube_scene(n_target, horizon, precision), "bench.yaml")
     state, solver = start_in_memory(prep)
     solver.clock = clock
     dt = prep.plan.dt_max
@@ -80,11 +83,14 @@ def main():
                     help="time in process CPU seconds (all threads) instead of wall seconds: steadier on a busy "
                          "machine; with NUMBA_NUM_THREADS=1 it is the single-core cost")
     ap.add_argument("--horizon", type=float, default=2.0, help="peridynamic horizon delta / h (default 2)")
+    ap.add_argument("--precision", choices=("float64", "float32"), default="float64",
+                    help="simulation.precision of the cube (default float64)")
     args = ap.parse_args()
     clock = time.process_time if args.cpu_time else time.perf_counter
-    rows = [bench(n, args.steps, clock, args.horizon) for n in args.sizes]
+    rows = [bench(n, args.steps, clock, args.horizon, args.precision) for n in args.sizes]
     print(f"machine: {platform.processor() or platform.machine()}, {numba.get_num_threads()} threads, "
-          f"numba {numba.__version__}, float64, {'CPU' if args.cpu_time else 'wall'} time, horizon {args.horizon} h")
+          f"numba {numba.__version__}, {args.precision}, {'CPU' if args.cpu_time else 'wall'} time, "
+          f"horizon {args.horizon} h")
     phases = list(rows[0]["phases"])
     taichi = {}
     if args.taichi:

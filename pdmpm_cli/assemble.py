@@ -7,6 +7,7 @@ import numpy as np
 
 from pdmpm_cli.engine.bonds import calibration_coefficients, reference_family_terms
 from pdmpm_cli.engine.colliders import BOUNDARY_CODES, BOX, CYLINDER, MESH, PENALTY_BACKSTOP, PLANE, ROW, SPHERE
+from pdmpm_cli.engine.fields import BOND_FACTORS
 from pdmpm_cli.engine.fracture import critical_stretch
 from pdmpm_cli.discretize import Discretization
 from pdmpm_cli.engine.emitter import Emitter
@@ -226,8 +227,9 @@ def build_model(scene: Scene, disc: Discretization) -> Model:
     n = disc.n_particles
     omega = np.zeros(n)
     kinv = np.zeros((n, 3, 3))
+    single = BOND_FACTORS[0].dtype_for(scene.simulation.precision) == "f4"  # bond_wv as the State stores it
     reference_family_terms(disc.rest_x, disc.volume, disc.bond_start, disc.bond_nbr, disc.body,
-                           disc.body_horizon, omega, kinv)
+                           disc.body_horizon, omega, kinv, single)
     g = scene.grid
     lo, hi = np.asarray(g.domain.min, dtype=np.float64), np.asarray(g.domain.max, dtype=np.float64)
     cells = np.ceil((hi - lo) / g.cell_size - 1e-9).astype(int)

@@ -6,7 +6,8 @@
     /               attributes: format, format_version, frame, threads (Numba threads),
                       pdmpm_version, scene_path, overrides (JSON list of --set items), variant ("" for none),
                       scene_json (the validated scene less what a resume may change, see _binding),
-                      model_sha256 (hash of the discretisation),
+                      model_sha256 (hash of the discretisation), precision (simulation.precision: the dtype
+                      of the per-particle and per-bond float arrays),
                       state_<name> for each of the State's scalars (time, step, dt_prev, vmax, ...)
     /state/<name>   every allocated State array that is not transient (declared in engine.fields and by the
                     materials), including the CSR families, which viscoelastic bodies rebuild; an emitter's born
@@ -77,7 +78,7 @@ def header(prep) -> dict[str, Any]:
         "scene_path": str(prep.path.resolve()), "overrides": json.dumps(list(prep.overrides)),
         "variant": prep.variant or "",
         "scene_json": json.dumps(_binding(prep.scene), sort_keys=True),
-        "model_sha256": digest.hexdigest(),
+        "model_sha256": digest.hexdigest(), "precision": prep.scene.simulation.precision,
     }
 
 
@@ -157,6 +158,11 @@ def latest(out: Path) -> Checkpoint:
 def check(ckpt: Checkpoint, prep) -> None:
     """InputError unless `prep` is the scene (and discretisation) the checkpoint was written for."""
     mine = header(prep)
+    theirs = ckpt.attrs.get("precision", "float64")
+    if mine["precision"] != theirs:  # refused, not converted: the resumed frames would not be the run's
+        raise InputError(f"{prep.path}: the run in {ckpt.path.parents[1]} was started with simulation.precision = "
+                         f"{theirs} and its checkpoint holds {theirs} arrays; this scene asks for {mine['precision']}. "
+                         f"Resume with --set simulation.precision={theirs}, or start a new run with --overwrite")
     if mine["scene_json"] != ckpt.attrs["scene_json"]:
         changes = _differences(json.loads(ckpt.attrs["scene_json"]), json.loads(mine["scene_json"]))
         raise InputError(f"{prep.path}: the scene differs from the one the run in {ckpt.path.parents[1]} was started "

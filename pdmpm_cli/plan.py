@@ -47,8 +47,9 @@ def state_fields(model: Model, backend: str) -> tuple[F.Field, ...]:
     return tuple(dict.fromkeys(out))
 
 
-def array_shapes(declared, model: Model, n_bonds: int, threads: int) -> dict:
-    """name -> (shape, dtype) of the declared arrays: per particle, per bond, or on the grid."""
+def array_shapes(declared, model: Model, n_bonds: int, threads: int, precision: str = "float64") -> dict:
+    """name -> (shape, dtype) of the declared arrays: per particle, per bond, or on the grid; the dtype follows
+    simulation.precision (engine.fields: Field.dtype_for)."""
     n, nodes = model.n_particles, tuple(model.grid_shape)
     q = FLIP_CHANNELS if model.flip > 0.0 else CHANNELS
     grid = {
@@ -61,7 +62,7 @@ def array_shapes(declared, model: Model, n_bonds: int, threads: int) -> dict:
         "particle_force_private": (threads, n, 3),  # per-thread pair-force arrays (CPU)
         "cell_bonds": (math.prod(c - 1 for c in nodes),), "cell_broken": (math.prod(c - 1 for c in nodes),),
     }
-    return {f.name: (shape_of(f, n, n_bonds, grid.get(f.name, ())), f.dtype) for f in declared}
+    return {f.name: (shape_of(f, n, n_bonds, grid.get(f.name, ())), f.dtype_for(precision)) for f in declared}
 
 
 def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
@@ -119,7 +120,7 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
                *(["fracture"] if fracture else [])]
     threads = numba.get_num_threads() if sim.backend == "cpu" else 0
     n, nb = disc.n_particles, disc.n_bonds
-    fields = array_shapes(state_fields(model, sim.backend), model, nb, threads)
+    fields = array_shapes(state_fields(model, sim.backend), model, nb, threads, sim.precision)
     fields.update({name: ((n,) + tail, dt) for name, (tail, dt) in MODEL_FIELDS.items()})
     if len(disc.pin_mask):
         fields.update({name: ((n,) + tail, dt) for name, (tail, dt) in PIN_FIELDS.items()})
@@ -141,5 +142,5 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
         step=sim.step, dt_cfl=dt_cfl, dt_bond=dt_bond, dt_max=dt_max, binding=binding, dt_reduced=reduced,
         wave_speed=wave,
         memory_bytes=memory, notes=tuple(disc.notes), backend=sim.backend, fbar=need_fbar, fracture=fracture,
-        contact=contact, remap=remap, emitted=emitted,
+        contact=contact, remap=remap, emitted=emitted, precision=sim.precision,
     )

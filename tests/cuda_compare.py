@@ -1,7 +1,7 @@
 """CPU backend vs CUDA backend, step for step. Needs numba.cuda: a GPU, or the simulator (NUMBA_ENABLE_CUDASIM=1,
 set before numba is imported; test_cuda.py runs this in a subprocess for that).
 
-    NUMBA_ENABLE_CUDASIM=1 python -m tests.cuda_compare [--steps N] [name ...]
+    NUMBA_ENABLE_CUDASIM=1 python -m tests.cuda_compare [--steps N] [--precision float32] [name ...]
 
 The cases are every bundled scene (scenes/*.yaml) at a tiny resolution, and small synthetic scenes that push
 walls, colliders, pins, wind, plasticity and contact between bodies. Both solvers take the same time steps (the CPU's), so any difference is
@@ -142,20 +142,22 @@ def mesh_folder() -> Path:
     return folder
 
 
-def prepared(name: str, backend: str) -> Prepared:
-    """A case by name, or a scene file given by its path."""
+def prepared(name: str, backend: str, precision: str = "float64") -> Prepared:
+    """A case by name, or a scene file given by its path, at that simulation.precision."""
+    sets = [f"simulation.backend={backend}", f"simulation.precision={precision}"]
     if name.endswith(".yaml"):
-        return prepare(name, [f"simulation.backend={backend}"])
+        return prepare(name, sets)
     if name in SYNTHETIC:
         base = SYNTHETIC[name]
-        return prepare_scene(Scene.model_validate({**base, "simulation": {**base["simulation"], "backend": backend}}),
+        simulation = {**base["simulation"], "backend": backend, "precision": precision}
+        return prepare_scene(Scene.model_validate({**base, "simulation": simulation}),
                              mesh_folder() / f"{backend}.yaml")
-    return prepare(ROOT / "scenes" / f"{name}.yaml", [*BUNDLED[name], f"simulation.backend={backend}"])
+    return prepare(ROOT / "scenes" / f"{name}.yaml", [*BUNDLED[name], *sets])
 
 
-def compare(name: str, steps: int) -> dict:
+def compare(name: str, steps: int, precision: str = "float64") -> dict:
     """Run `steps` CPU steps and the same steps on the CUDA backend; the largest relative differences."""
-    preps = [prepared(name, b) for b in ("cpu", "cuda")]
+    preps = [prepared(name, b, precision) for b in ("cpu", "cuda")]
     states, solvers = [], []
     for prep in preps:
         states.append(initial_state(prep.model, prep.plan, prep.disc.velocity, prep.disc.velocity_gradient))
@@ -223,11 +225,15 @@ def compare(name: str, steps: int) -> dict:
 
 
 def main(argv):
-    steps = 6
-    if argv[:1] == ["--steps"]:
-        steps, argv = int(argv[1]), argv[2:]
+    steps, precision = 6, "float64"
+    while argv[:1] in (["--steps"], ["--precision"]):
+        if argv[0] == "--steps":
+            steps = int(argv[1])
+        else:
+            precision = argv[1]
+        argv = argv[2:]
     for name in argv or CASES:
-        print(json.dumps(compare(name, steps)), flush=True)
+        print(json.dumps(compare(name, steps, precision)), flush=True)
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 on a machine without a GPU. The simulator runs the kernels as Python and cannot tell what the CUDA target
 rejects (np.floor, the builtin max in numba 0.68); this needs only NVVM (the CUDA toolkit), not a driver.
 
-    NUMBA_ENABLE_CUDASIM=0 python -m tests.cuda_ptx     (exit 3 when NVVM is missing)
+    NUMBA_ENABLE_CUDASIM=0 python -m tests.cuda_ptx [--precision float32]    (exit 3 when NVVM is missing)
 
 The backend runs one step of each tests.cuda_compare synthetic case and of the tiny fracture and viscoelastic
 scenes, with host arrays standing in for device arrays and a `launch` that records kernels and argument types
@@ -44,8 +44,8 @@ class HostArray(np.ndarray):
         self[...] = a
 
 
-def launched_kernels() -> dict:
-    """{(kernel name, argument types): kernel} over one step of every case."""
+def launched_kernels(precision: str = "float64") -> dict:
+    """{(kernel name, argument types): kernel} over one step of every case at that simulation.precision."""
     seen = {}
 
     def record(kernel, n, *args):
@@ -58,7 +58,7 @@ def launched_kernels() -> dict:
     # device functions are compiled for the current device's compute capability: name one instead
     dispatcher.get_current_device = lambda: types.SimpleNamespace(compute_capability=CC)
     for name in CASES:
-        prep = prepared(name, "cuda")
+        prep = prepared(name, "cuda", precision)
         state = initial_state(prep.model, prep.plan, prep.disc.velocity, prep.disc.velocity_gradient)
         if state.has("particle_crack"):
             state.particle_crack[:3] = 1
@@ -73,7 +73,8 @@ def main():
     if not nvvm.is_available():
         print("NVVM (the CUDA toolkit's compiler library) is not available", file=sys.stderr)
         sys.exit(3)
-    for (name, sig), kernel in sorted(launched_kernels().items(), key=lambda item: item[0][0]):
+    precision = sys.argv[2] if sys.argv[1:2] == ["--precision"] else "float64"
+    for (name, sig), kernel in sorted(launched_kernels(precision).items(), key=lambda item: item[0][0]):
         ptx, _ = cuda.compile_ptx(kernel.py_func, sig, cc=CC)
         print(f"{name}: {len(ptx)} characters of PTX")
 

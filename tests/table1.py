@@ -8,6 +8,9 @@ tests/test_table1.py asserts the behaviour and compares every metric with the st
 Regenerate the baselines after an intended change, and review the diff:
 
     python -m tests.table1 --update          # all cases; or name some: python -m tests.table1 --update cloth_soft
+
+`--set key=value` adds an override to every case (e.g. `--set simulation.precision=float32`) and prints the metrics
+outside their tolerance of the stored baselines.
 """
 
 from __future__ import annotations
@@ -211,10 +214,11 @@ CASES: dict[str, Case] = {
 
 
 @cache
-def run_case(name: str, perturbed: bool = False) -> tuple[Trace, dict[str, float]]:
-    """Run a case (once per process; with its material perturbation if asked) and measure it."""
+def run_case(name: str, perturbed: bool = False, extra: tuple[str, ...] = ()) -> tuple[Trace, dict[str, float]]:
+    """Run a case (once per process; with its material perturbation if asked, and `extra` overrides) and measure
+    it."""
     case = CASES[name]
-    overrides = [*case.reduced, *([case.perturb] if perturbed else [])]
+    overrides = [*case.reduced, *([case.perturb] if perturbed else []), *extra]
     prep = prepare(ROOT / "scenes" / case.scene, overrides, case.variant)
     plan = prep.plan
     state, solver = start_in_memory(prep)
@@ -247,15 +251,22 @@ def main(argv=None):
     parser.add_argument("cases", nargs="*", help="case names (default all)")
     parser.add_argument("--update", action="store_true", help="write the measured metrics as the new baselines")
     parser.add_argument("--perturbed", action="store_true", help="also run each case's material perturbation")
+    parser.add_argument("--set", dest="extra", action="append", default=[],
+                        help="an override for every case; the metrics are then compared with the baselines")
     args = parser.parse_args(argv)
+    if args.extra and args.update:
+        parser.error("--set runs other cases than the baselines': leave out --update")
     names = args.cases or list(CASES)
     baselines = load_baselines()
     for name in names:
-        trace, metrics = run_case(name)
+        trace, metrics = run_case(name, extra=tuple(args.extra))
         line = ", ".join(f"{k} {v:.4g}" for k, v in metrics.items())
         print(f"{name:16s} {trace.model.n_particles:6d} particles {trace.seconds:6.1f} s  {line}", flush=True)
+        if args.extra and name in baselines:
+            bad = deviations(name, metrics, baselines[name])
+            print(f"{'':16s} against the baselines: {'; '.join(bad) if bad else 'all within tolerance'}", flush=True)
         if args.perturbed:
-            _, pm = run_case(name, perturbed=True)
+            _, pm = run_case(name, perturbed=True, extra=tuple(args.extra))
             bad = deviations(name, pm, metrics)
             print(f"{'':16s} perturbed ({CASES[name].perturb}): " + ", ".join(f"{k} {v:.4g}" for k, v in pm.items())
                   + f"  -> {'caught' if bad else 'NOT caught'}", flush=True)

@@ -110,7 +110,7 @@ def print_plan(console: Console, plan):
                   f"{plan.dt_max * plan.wave_speed / plan.cell_size:.3g} dx / c)", f"{plan.dt_max:.4g}")
     steps.add_row("substeps per frame (>=)", f"{plan.frame_dt / plan.dt_max:.1f}")
     console.print(steps)
-    arrays = Table(title=f"arrays ({plan.memory_bytes / 2**20:.1f} MiB)")
+    arrays = Table(title=f"arrays ({plan.memory_bytes / 2**20:.1f} MiB, precision {plan.precision})")
     arrays.add_column("field")
     arrays.add_column("shape", justify="right")
     arrays.add_column("dtype")

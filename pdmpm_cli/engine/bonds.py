@@ -96,9 +96,11 @@ def invert_shape_tensor(k, out):
 
 @njit(cache=True)
 def reference_family_terms(rest_x, particle_volume, bond_start, bond_nbr, particle_body, body_horizon,
-                           particle_omega, particle_Kinv):
+                           particle_omega, particle_Kinv, single=False):
     """Weighted volume omega_p = sum_q w V_q and the inverse shape tensor K_p^-1 (eq. 4, second factor). Once per
-    run, serial: a parallel loop would cost more to compile than it saves."""
+    run, serial: a parallel loop would cost more to compile than it saves. `single`: the State stores w V_q in
+    float32 (simulation.precision), so K_p sums the rounded weights the Fbar pass will read, and Fbar at rest is
+    the identity to float64's round-off."""
     for p in range(rest_x.shape[0]):
         delta = body_horizon[particle_body[p]]
         k = np.zeros((3, 3))
@@ -107,6 +109,8 @@ def reference_family_terms(rest_x, particle_volume, bond_start, bond_nbr, partic
             q = bond_nbr[b]
             x0, x1, x2, r = bond_vector(rest_x, p, q)
             wv = influence(r, delta) * particle_volume[q]
+            if single:
+                wv = float(np.float32(wv))
             om += wv
             xi = (x0, x1, x2)
             for a in range(3):

@@ -48,6 +48,8 @@ class Plan:
     fracture: bool = False  # some body can fracture (section 6): crack particles and the fracture pass
     contact: bool = False  # one grid field per body and the contact pass between them (engine/contact.py)
     remap: bool = False  # a FLIP share: FLIP grid channels and MUSL's position pass (engine/transfer.py: advect_at)
+    precision: str = "float64"  # simulation.precision: the dtype of the per-particle and per-bond float arrays in
+    # `fields` (engine.fields: Field.dtype_for)
     emitted: int = 0  # particles an emitter bears over the run (engine.emitter), after the initial `particles`: the
     # layers due before the end (one due within the last step's span is not born, so this bounds the count)
 

@@ -34,8 +34,8 @@ def initial_state(model: Model, plan: Plan, velocity: np.ndarray, velocity_gradi
     """The State at t = 0: the Plan's arrays, particles at rest positions with their initial velocity and APIC
     matrix, the reference families, and the reference bond factors (w V_q, 1 / |xi|) where they exist."""
     declared = declared_fields()
-    shapes = {name: shape for name, (shape, _) in plan.fields.items() if name in declared}
-    state = State.allocate(declared, shapes, {
+    specs = {name: spec for name, spec in plan.fields.items() if name in declared}
+    state = State.allocate(declared, specs, {
         "particle_x": model.rest_x, "particle_v": velocity, "particle_C": velocity_gradient,
         "bond_start": model.bond_start, "bond_nbr": model.bond_nbr})
     if state.has("bond_wv"):

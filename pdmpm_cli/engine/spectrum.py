@@ -107,8 +107,10 @@ class _Stiffness:
         self.f0 = self.force(self.x0)
 
     def _copy(self, state):
-        return State(state.declared, {n: (a if n in self.SHARED else a.copy()) for n, a in state.arrays.items()},
-                     **state.scalars)
+        """A copy the probes can change, in float64 whatever simulation.precision stores: K u is a difference of
+        forces 1e-7 of the spacing apart."""
+        return State(state.declared, {n: (a if n in self.SHARED else a.astype(np.float64) if a.dtype == np.float32
+                                          else a.copy()) for n, a in state.arrays.items()}, **state.scalars)
 
     def force(self, x) -> np.ndarray:
         w = self.work

@@ -71,16 +71,18 @@ class State:
         return self.copy()
 
     @classmethod
-    def allocate(cls, fields: dict[str, Field], shapes: dict[str, tuple], initial: dict[str, np.ndarray]) -> State:
-        """Allocate the Plan's arrays: `shapes` gives each one's full shape, `initial` the values of some (positions,
-        velocities, the families); the rest start at their declared fill value."""
+    def allocate(cls, fields: dict[str, Field], specs: dict[str, tuple[tuple, str]], initial: dict[str, np.ndarray]
+                 ) -> State:
+        """Allocate the Plan's arrays: `specs` gives each one's full shape and dtype (the Plan's `fields`, whose
+        dtypes follow simulation.precision), `initial` the values of some (positions, velocities, the families); the
+        rest start at their declared fill value."""
         arrays = {}
-        for name, shape in shapes.items():
+        for name, (shape, dtype) in specs.items():
             f = fields[name]
             if name in initial:
-                arrays[name] = np.array(initial[name], dtype=f.dtype, copy=True).reshape(shape)
+                arrays[name] = np.array(initial[name], dtype=dtype, copy=True).reshape(shape)
             else:
-                arrays[name] = np.full(shape, f.fill, dtype=f.dtype)
+                arrays[name] = np.full(shape, f.fill, dtype=dtype)
         return cls(fields, arrays)
 
 

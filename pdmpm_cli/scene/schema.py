@@ -460,6 +460,17 @@ class Simulation(Strict):
                            "every material and fracture; not an emitter). `pdmpm run --backend` overrides it."
     )
 
+    precision: Literal["float64", "float32"] = Field(
+        "float64",
+        description="Storage precision of the per-particle and per-bond float arrays [-]. float32 stores velocities, "
+                    "APIC matrices, forces, damage, bond weights, plastic strains and viscoelastic bond forces in "
+                    "single precision: 5-18 % less memory (the grids stay float64); on the CPU no faster; results "
+                    "within about 1e-6 of float64's, more where fracture or a flow amplifies round-off (1-2 %). "
+                    "Positions, 1 / |xi|, Fbar, a liquid's volume ratio, the grids, energies and all arithmetic stay "
+                    "float64 (a step's move v dt is below float32's resolution of a position). docs/method.md, "
+                    "'Precision'; docs/results.md, 'float32'."
+    )
+
     @field_validator("fps")
     @classmethod
     def _frames(cls, fps: float, info: ValidationInfo) -> float:
