@@ -11,14 +11,13 @@ order and see the cuts of the ones before). Fields per end: (unsplit, owner's si
 import argparse
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 import pdmpm_cli.engine.solver as solver_module
-from pdmpm_cli.engine.fracture import candidate_edges, cut_clusters
 from pdmpm_cli.engine.transfer import node_side, stencil
 from pdmpm_cli.study.fracture import GRIP, large_pieces, plate_scene
 from pdmpm_cli.study.sim import Sim
+
+from notch_faces import one_cluster_at_a_time  # bench/, the script's own folder
 
 NOTCH = 0.12
 
@@ -65,59 +64,46 @@ def main():
                     out[1 + node_side(p, o, x, state.particle_crack_n, state.particle_piece, 0.5 * h)] += 1
         return out, owners
 
-    def update(threshold, delta_, start, end, particle_x, rest_x, bond_start, bond_nbr, bond_active, lmax, bmax,
-               particle_cut=None):
-        cand = start + np.flatnonzero((lmax[start:end] > threshold) & (bmax[start:end] >= 0))
-        if len(cand) == 0:
-            return 0
+    def on_cut(mem, before, cut):
         if first["t"] is None:
             first["t"] = state.time
-        src, dst = candidate_edges(start, end, cand, particle_x, bond_start, bond_nbr, bond_active, bmax)
-        n, labels = connected_components(coo_matrix((np.ones(len(src)), (src, dst)), shape=(len(cand),) * 2),
-                                         directed=False)
-        total = 0
-        for k in range(n):
-            mem = cand[labels == k]
-            before = bond_active.copy()
-            top = mem[np.argmax(lmax[mem])]
-            q = bond_nbr[bmax[top]]
-            cut = cut_clusters(delta_, mem, np.array([0, len(mem)], dtype=np.int64), particle_x, bond_start,
-                               bond_nbr, lmax, bmax, bond_active, rest_x, model.particle_cut)
-            total += cut
-            new = (before == 1) & (bond_active == 0)
-            hit = np.unique(np.concatenate([own[new], nbr[new]]))
-            bad = hit[along[hit]]
-            if len(bad):
-                c = rest_x[mem].mean(axis=0)
-                n_ = particle_x[q] - particle_x[top]
-                n_ /= np.linalg.norm(n_)
-                r = np.sqrt(((particle_x[mem] - particle_x[mem].mean(axis=0)) ** 2).sum(axis=1).max())
-                print(f"t={state.time:.4f} (tip's first cut {first['t']:.4f}) cluster of {len(mem)} at "
-                      f"x={c[0]-edge:.3f} y={(c[1]-mid)/h:+.2f}h radius {r/h:.2f}h "
-                      f"normal {np.round(n_, 2).tolist()} top bond "
-                      f"{top}->{q} rest ({x[top,0]-edge:.3f},{(x[top,1]-mid)/h:+.2f}h)->({x[q,0]-edge:.3f},"
-                      f"{(x[q,1]-mid)/h:+.2f}h) l/thr={lmax[top]/threshold:.3f} cut {cut}, damaging along the "
-                      f"notch {len(bad)}: x {np.round(x[bad,0]-edge, 3).tolist()} "
-                      f"y/h {np.round((x[bad,1]-mid)/h, 2).tolist()}")
-                for e in np.flatnonzero(new & (along[own] | along[nbr]) & (own < nbr)):
-                    u, v = own[e], nbr[e]
-                    cu = model.particle_cut[u, :3] / max(np.linalg.norm(model.particle_cut[u, :3]), 1e-30)
-                    cv = model.particle_cut[v, :3] / max(np.linalg.norm(model.particle_cut[v, :3]), 1e-30)
-                    bd = (x[v] - x[u]) / np.linalg.norm(x[v] - x[u])
-                    print(f"   bond ({x[u,0]-edge:.3f},{(x[u,1]-mid)/h:+.2f}h,{(x[u,2]-x[:,2].min())/h:.2f}h)->"
-                          f"({x[v,0]-edge:.3f},{(x[v,1]-mid)/h:+.2f}h,{(x[v,2]-x[:,2].min())/h:.2f}h) cut dirs "
-                          f"{np.round(cu, 2).tolist()} {np.round(cv, 2).tolist()} bond dir {np.round(bd, 2).tolist()}")
-                for p in (top, q):
-                    print(f"   particle {p}: fields (unsplit, near, far) / owners {fields_of(p)} crack_s "
-                          f"{state.particle_crack_s[p]:.4g} damage {state.particle_damage[p]:.3f}")
-                for o in sorted(fields_of(top)[1] | fields_of(q)[1])[:6] if fields_of(top) else []:
-                    oo = o if o >= 0 else -o - 2
-                    print(f"   owner {oo}: rest ({x[oo,0]-edge:.3f},{(x[oo,1]-mid)/h:+.2f}h) crack_s "
-                          f"{state.particle_crack_s[oo]/h:.3f}h n {np.round(state.particle_crack_n[oo], 2).tolist()}"
-                          f" cut-count {model.particle_cut[oo,3] if len(model.particle_cut) else 0:.2f}")
-        return total
+        particle_x, lmax, bond_active, rest_x = state.particle_x, state.particle_lmax, state.bond_active, x
+        threshold = b.fracture.threshold
+        top = mem[np.argmax(lmax[mem])]
+        q = state.bond_nbr[state.particle_bmax[top]]
+        new = (before == 1) & (bond_active == 0)
+        hit = np.unique(np.concatenate([own[new], nbr[new]]))
+        bad = hit[along[hit]]
+        if len(bad):
+            c = rest_x[mem].mean(axis=0)
+            n_ = particle_x[q] - particle_x[top]
+            n_ /= np.linalg.norm(n_)
+            r = np.sqrt(((particle_x[mem] - particle_x[mem].mean(axis=0)) ** 2).sum(axis=1).max())
+            print(f"t={state.time:.4f} (tip's first cut {first['t']:.4f}) cluster of {len(mem)} at "
+                  f"x={c[0]-edge:.3f} y={(c[1]-mid)/h:+.2f}h radius {r/h:.2f}h "
+                  f"normal {np.round(n_, 2).tolist()} top bond "
+                  f"{top}->{q} rest ({x[top,0]-edge:.3f},{(x[top,1]-mid)/h:+.2f}h)->({x[q,0]-edge:.3f},"
+                  f"{(x[q,1]-mid)/h:+.2f}h) l/thr={lmax[top]/threshold:.3f} cut {cut}, damaging along the "
+                  f"notch {len(bad)}: x {np.round(x[bad,0]-edge, 3).tolist()} "
+                  f"y/h {np.round((x[bad,1]-mid)/h, 2).tolist()}")
+            for e in np.flatnonzero(new & (along[own] | along[nbr]) & (own < nbr)):
+                u, v = own[e], nbr[e]
+                cu = model.particle_cut[u, :3] / max(np.linalg.norm(model.particle_cut[u, :3]), 1e-30)
+                cv = model.particle_cut[v, :3] / max(np.linalg.norm(model.particle_cut[v, :3]), 1e-30)
+                bd = (x[v] - x[u]) / np.linalg.norm(x[v] - x[u])
+                print(f"   bond ({x[u,0]-edge:.3f},{(x[u,1]-mid)/h:+.2f}h,{(x[u,2]-x[:,2].min())/h:.2f}h)->"
+                      f"({x[v,0]-edge:.3f},{(x[v,1]-mid)/h:+.2f}h,{(x[v,2]-x[:,2].min())/h:.2f}h) cut dirs "
+                      f"{np.round(cu, 2).tolist()} {np.round(cv, 2).tolist()} bond dir {np.round(bd, 2).tolist()}")
+            for p in (top, q):
+                print(f"   particle {p}: fields (unsplit, near, far) / owners {fields_of(p)} crack_s "
+                      f"{state.particle_crack_s[p]:.4g} damage {state.particle_damage[p]:.3f}")
+            for o in sorted(fields_of(top)[1] | fields_of(q)[1])[:6] if fields_of(top) else []:
+                oo = o if o >= 0 else -o - 2
+                print(f"   owner {oo}: rest ({x[oo,0]-edge:.3f},{(x[oo,1]-mid)/h:+.2f}h) crack_s "
+                      f"{state.particle_crack_s[oo]/h:.3f}h n {np.round(state.particle_crack_n[oo], 2).tolist()}"
+                      f" cut-count {model.particle_cut[oo,3] if len(model.particle_cut) else 0:.2f}")
 
-    solver_module.fracture_update = update
+    solver_module.fracture_update = one_cluster_at_a_time(model, on_cut)
     while state.time < args.until - 1e-12:
         sim.solver.advance(state, min(state.time + sim.plan.frame_dt, args.until))
         if state.bonds_cut and large_pieces(state, model) >= 2:

@@ -24,6 +24,32 @@ from pdmpm_cli.study.sim import Sim
 NOTCH = 0.12  # plate_scene's notch length [m]
 
 
+def one_cluster_at_a_time(model, on_cut):
+    """A stand-in for the solver's fracture_update that cuts one cluster at a time, which cuts the same bonds
+    (clusters run in order and see the cuts of the ones before), and calls on_cut(members, bond_active before the
+    cut, bonds cut) after each (bench/notch_cuts.py uses it too)."""
+
+    def update(threshold, delta, start, end, particle_x, rest_x, bond_start, bond_nbr, bond_active, lmax, bmax,
+               particle_cut=None):
+        cand = start + np.flatnonzero((lmax[start:end] > threshold) & (bmax[start:end] >= 0))
+        if len(cand) == 0:
+            return 0
+        src, dst = candidate_edges(start, end, cand, particle_x, bond_start, bond_nbr, bond_active, bmax)
+        n, labels = connected_components(coo_matrix((np.ones(len(src)), (src, dst)), shape=(len(cand),) * 2),
+                                         directed=False)
+        total = 0
+        for k in range(n):
+            mem = cand[labels == k]
+            before = bond_active.copy()
+            cut = cut_clusters(delta, mem, np.array([0, len(mem)], dtype=np.int64), particle_x, bond_start,
+                               bond_nbr, lmax, bmax, bond_active, rest_x, model.particle_cut)
+            total += cut
+            on_cut(mem, before, cut)
+        return total
+
+    return update
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cell", type=float, default=0.02)
@@ -44,31 +70,16 @@ def main():
     rest = np.linalg.norm(x[nbr] - x[own], axis=1)
     clusters = []
 
-    def update(threshold, delta, start, end, particle_x, rest_x, bond_start, bond_nbr, bond_active, lmax, bmax,
-               particle_cut=None):
-        cand = start + np.flatnonzero((lmax[start:end] > threshold) & (bmax[start:end] >= 0))
-        if len(cand) == 0:
-            return 0
-        src, dst = candidate_edges(start, end, cand, particle_x, bond_start, bond_nbr, bond_active, bmax)
-        n, labels = connected_components(coo_matrix((np.ones(len(src)), (src, dst)), shape=(len(cand),) * 2),
-                                         directed=False)
-        total = 0
-        for k in range(n):
-            mem = cand[labels == k]
-            before = bond_active.copy()
-            cut = cut_clusters(delta, mem, np.array([0, len(mem)], dtype=np.int64), particle_x, bond_start,
-                               bond_nbr, lmax, bmax, bond_active, rest_x, model.particle_cut)
-            total += cut
-            on_faces = int(np.count_nonzero(faces & (before == 1) & (bond_active == 0)))
-            if on_faces:
-                top = mem[np.argmax(lmax[mem])]
-                n_ = particle_x[bond_nbr[bmax[top]]] - particle_x[top]
-                c = rest_x[mem].mean(axis=0)
-                clusters.append((state.time, len(mem), c[0] - edge, (c[1] - mid) / b.spacing,
-                                 n_ / np.linalg.norm(n_), cut, on_faces))
-        return total
+    def on_cut(mem, before, cut):
+        on_faces = int(np.count_nonzero(faces & (before == 1) & (state.bond_active == 0)))
+        if on_faces:
+            top = mem[np.argmax(state.particle_lmax[mem])]
+            n_ = state.particle_x[state.bond_nbr[state.particle_bmax[top]]] - state.particle_x[top]
+            c = x[mem].mean(axis=0)
+            clusters.append((state.time, len(mem), c[0] - edge, (c[1] - mid) / b.spacing,
+                             n_ / np.linalg.norm(n_), cut, on_faces))
 
-    solver_module.fracture_update = update
+    solver_module.fracture_update = one_cluster_at_a_time(model, on_cut)
     print("| t [s] | faces' largest stretch / threshold | at x [m] | y [h] -> y [h] | bonds cut | along the faces |")
     print("|---|---|---|---|---|---|")
     while state.time < args.until - 1e-12:
