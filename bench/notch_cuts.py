@@ -41,7 +41,6 @@ def main():
     along = inner & (x[:, 0] < edge + NOTCH - delta)
     own = np.repeat(np.arange(len(model.bond_start) - 1), np.diff(model.bond_start))
     nbr = model.bond_nbr
-    rest = np.linalg.norm(x[nbr] - x[own], axis=1)
     first = {"t": None}
     wx, wy, wz = np.empty(4), np.empty(4), np.empty(4)
 

@@ -63,17 +63,22 @@ def stopping_after(frames: int):
     return stop
 
 
+def interrupt(scene, overrides, out, frames: int) -> None:
+    """Run `scene` with `overrides` into `out` and stop it past frame `frames` as Ctrl-C would."""
+    advance = Solver.advance
+    Solver.advance = stopping_after(frames)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            simulate(prepare(scene, overrides), out, overwrite=True)
+    finally:
+        Solver.advance = advance
+
+
 @pytest.fixture(scope="module")
 def interrupted(scene, tmp_path_factory) -> Path:
     """A run stopped after frame 8 (checkpoints at frames 3 and 6), in this process: a template to copy."""
     out = tmp_path_factory.mktemp("interrupted") / "run"
-    advance = Solver.advance
-    Solver.advance = stopping_after(8)
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            simulate(prepare(scene, LONG), out, overwrite=True)
-    finally:
-        Solver.advance = advance
+    interrupt(scene, LONG, out, 8)
     return out
 
 
@@ -280,11 +285,7 @@ def interrupt_and_resume(scene, overrides, tmp_path, monkeypatch, capsys):
     reference = tmp_path / "reference"
     simulate(prepare(scene, overrides), reference, overwrite=True)
     out = tmp_path / "run"
-    advance = Solver.advance
-    monkeypatch.setattr(Solver, "advance", stopping_after(8))
-    with pytest.raises(KeyboardInterrupt):
-        simulate(prepare(scene, overrides), out, overwrite=True)
-    monkeypatch.setattr(Solver, "advance", advance)
+    interrupt(scene, overrides, out, 8)
     ckpt = latest(out)
     code, err = cli(monkeypatch, capsys, "run", scene, "--resume", out, "--quiet",
                     *[a for item in overrides for a in ("--set", item)])

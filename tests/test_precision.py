@@ -8,12 +8,10 @@ import numpy as np
 import pytest
 
 from pdmpm_cli.checkpoint import latest
-from pdmpm_cli.engine.solver import Solver
 from pdmpm_cli.io.hdf5 import read_run
 from pdmpm_cli.runner import prepare, simulate
 from pdmpm_cli.scene.loader import merge
-from tests.test_checkpoint import LONG, cli, interrupt_and_resume, stopping_after
-from tests.test_cli import SMALL
+from tests.test_checkpoint import LONG, cli, interrupt, interrupt_and_resume, scene  # noqa: F401 (scene: a fixture)
 from tests.test_cuda import TINY, python
 
 SINGLE = {"simulation": {"precision": "float32"}}
@@ -43,13 +41,6 @@ def test_float32_arrays_and_free_fall(sim_factory):
     np.testing.assert_allclose(sim.state.particle_v[:, 1], -9.81 * 0.3, rtol=5e-5)  # measured 1.05e-5
 
 
-@pytest.fixture(scope="module")
-def scene(tmp_path_factory):
-    path = tmp_path_factory.mktemp("scene") / "small.yaml"
-    path.write_text(SMALL)
-    return path
-
-
 def test_float32_checkpoint_resumes_bitwise_and_refuses_float64(scene, tmp_path, monkeypatch, capsys):
     """A float32 run stopped after frame 8 resumes to the uninterrupted run's frames; its checkpoint records the
     precision and holds float32 arrays; resuming it at float64 is bad input (exit 2) that says what to do."""
@@ -59,11 +50,7 @@ def test_float32_checkpoint_resumes_bitwise_and_refuses_float64(scene, tmp_path,
     assert ckpt.arrays["particle_v"].dtype == np.float32 and ckpt.arrays["particle_x"].dtype == np.float64
     assert read_run(tmp_path / "run" / "run.h5").field("particle_v").dtype == np.float32
     out = tmp_path / "again"
-    advance = Solver.advance
-    monkeypatch.setattr(Solver, "advance", stopping_after(4))
-    with pytest.raises(KeyboardInterrupt):
-        simulate(prepare(scene, single), out, overwrite=True)
-    monkeypatch.setattr(Solver, "advance", advance)
+    interrupt(scene, single, out, 4)
     assert latest(out).attrs["precision"] == "float32"
     code, err = cli(monkeypatch, capsys, "run", scene, "--resume", out, *(a for s in LONG for a in ("--set", s)))
     assert code == 2
