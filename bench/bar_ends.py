@@ -1,10 +1,11 @@
 """Where the vibrating bar's period and decay come from: docs/results.md ('Vibrating bar: the sampling, the
 calibration and the fixed end').
 
-Usage: python bench/bar_ends.py [--sampling relaxed jittered lattice] [--ends fixed mirrored] [--width 4]
-       [--flip 0]
+Usage: python bench/bar_ends.py [--sampling relaxed jittered lattice] [--ends fixed clamped mirrored]
+       [--width 4] [--flip 0]
 - fixed: Sulsky's bar as tests/test_dynamics.py runs it (a sticky wall at x0, slip walls on the long sides,
   2 periods).
+- clamped: the same with the wall at x0 `boundary: clamped` (its nodes mirrored, not zeroed).
 - mirrored: the same bar twice as long with no wall at x0, in its antisymmetric first mode: its middle is the fixed
   end's node by symmetry, so each half is the fixed bar without the wall's grid nodes. Analytic period 10 s for both.
 - --width: the bar's width in cells (the bar of the tests is 4 cells, 8 particles, wide).
@@ -52,6 +53,8 @@ def scene(sampling: str, ends: str, width: int, flip: float) -> tuple[dict, floa
         body["shape"]["size"][1] = body["shape"]["size"][2] = width * CELL
         for c in d["colliders"][1:]:
             c["point"] = [top if v == 9 * CELL else v for v in c["point"]]
+    if ends == "clamped":
+        d["colliders"][0]["boundary"] = "clamped"
     if ends == "mirrored":
         d["colliders"] = d["colliders"][1:]
         d["grid"]["domain"]["max"][0] = x0 + 2 * BAR_LENGTH + 6 * CELL
@@ -90,7 +93,7 @@ def bar(sampling: str, ends: str, width: int, flip: float):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sampling", nargs="+", default=["relaxed", "jittered", "lattice"])
-    ap.add_argument("--ends", nargs="+", default=["fixed", "mirrored"])
+    ap.add_argument("--ends", nargs="+", default=["fixed", "clamped", "mirrored"])
     ap.add_argument("--width", type=int, nargs="+", default=[4], help="cells")
     ap.add_argument("--flip", type=float, nargs="+", default=[0.0])
     a = ap.parse_args()

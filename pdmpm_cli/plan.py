@@ -128,6 +128,10 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
     if emitted and sim.backend != "cpu":
         raise InputError("an emitter runs on the CPU backend only (its births grow the arrays on the host); run with "
                          "--backend cpu, or remove the emitter")
+    clamped = [i for i, c in enumerate(scene.colliders) if c.boundary == "clamped"]
+    if clamped and sim.backend != "cpu":
+        raise InputError(f"colliders[{clamped[0]}]: boundary clamped runs on the CPU backend only (its mirror pass "
+                         f"after the grid update is not on the GPU); run with --backend cpu, or use boundary: sticky")
     if emitted and scene.output.usd:
         raise InputError("output.usd cannot hold a particle count that changes between frames yet; an emitter "
                          "scene writes run.h5, VTK and PLY: set output.usd: false")

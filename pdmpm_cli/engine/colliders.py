@@ -3,7 +3,8 @@
 Each collider is a header row of a float64 table (packed by pdmpm_cli.assemble), so a kernel loops over them without
 objects and every kernel takes the one table:
   0 kind | 1-3 point/centre | 4-6 normal, box half-size or cylinder axis | 7 radius | 8 half height |
-  9 sign (+1, or -1 inside-out) | 10-12 velocity | 13 boundary (0 sticky, 1 slip, 2 separate) | 14 friction |
+  9 sign (+1, or -1 inside-out) | 10-12 velocity | 13 boundary (0 sticky, 1 slip, 2 separate, 3 clamped: planes) |
+  14 friction |
   15 rows the collider spans (1, or 1 + its data rows) | 16-18 mesh: distance samples per axis |
   19-21 mesh: first sample's position at time 0 [m] | 22 mesh: sample spacing [m] |
   23 penalty response: the depth [m] below which the projection backs it up (0: the projection from the surface) |
@@ -21,8 +22,8 @@ from pdmpm_cli.engine.kernel import Kernel
 from pdmpm_cli.engine.parallel import SCRATCH_CHUNKS
 
 PLANE, BOX, SPHERE, CYLINDER, MESH = 0, 1, 2, 3, 4
-STICKY, SLIP, SEPARATE = 0, 1, 2
-BOUNDARY_CODES = {"sticky": STICKY, "slip": SLIP, "separate": SEPARATE}
+STICKY, SLIP, SEPARATE, CLAMPED = 0, 1, 2, 3
+BOUNDARY_CODES = {"sticky": STICKY, "slip": SLIP, "separate": SEPARATE, "clamped": CLAMPED}
 ROW = 25
 PENALTY_BACKSTOP = 2.0  # penalty colliders: nodes and particles deeper than this project as before [cells]
 
@@ -170,7 +171,7 @@ def signed_distance(table, c, x0, x1, x2, t, n):
 def respond(v, vc0, vc1, vc2, n, boundary, friction):
     """Project velocity v (in place) against a surface with normal n moving at vc (Stomakhin 2013, sec. 8)."""
     r0, r1, r2 = v[0] - vc0, v[1] - vc1, v[2] - vc2
-    if boundary == STICKY:
+    if boundary == STICKY or boundary == CLAMPED:  # a clamped plane's nodes are mirrored after (mirror_clamped)
         r0, r1, r2 = 0.0, 0.0, 0.0
     else:
         vn = r0 * n[0] + r1 * n[1] + r2 * n[2]

@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit, prange
 
 from pdmpm_cli.engine.bspline import cubic_weights, cubic_weights_grad
-from pdmpm_cli.engine.colliders import collide_all, push_out, respond
+from pdmpm_cli.engine.colliders import CLAMPED, collide_all, header_rows, push_out, respond, signed_distance
 
 SAME_CRACK_COS = math.cos(math.pi / 4.0)  # crack directions within 45 degrees: one crack (fracture.SPLIT_COS)
 
@@ -261,6 +261,75 @@ def grid_update(grid, dt, gravity, wind, drag, origin, dx, box, t_new, colliders
             for k in range(box[4], box[5]):
                 grid_node_update(i, j, k, grid, dt, gravity, wind, drag, origin, dx, t_new, colliders,
                                  wall_boundary, wall_friction, v, nrm)
+
+
+MIRROR_DEPTH = 3.0  # cells behind a clamped plane whose nodes are mirrored (the cubic B-spline reaches 2)
+
+
+def has_clamped(colliders) -> bool:
+    """Whether the packed collider table holds a clamped plane (then `mirror_clamped` follows each grid update)."""
+    return any(int(colliders[c, 13]) == CLAMPED for c in header_rows(colliders))
+
+
+@njit(cache=True, inline="always")
+def behind_clamped(colliders, x0, x1, x2, t, n):
+    """Whether point x is on or behind any clamped plane."""
+    c = 0
+    while c < colliders.shape[0]:
+        if int(colliders[c, 13]) == CLAMPED and signed_distance(colliders, c, x0, x1, x2, t, n) <= 0.0:
+            return True
+        c += int(colliders[c, 15])
+    return False
+
+
+@njit(parallel=True, cache=True)
+def mirror_clamped(grid, origin, dx, box, t_new, colliders):
+    """After the grid update: each node with mass less than MIRROR_DEPTH cells behind a clamped plane takes
+    v = 2 v_c - v(x_m), the odd reflection of the velocity at its mirror point x_m = x - 2 phi n (trilinear from the
+    nodes in front of every clamped plane; one on or behind one, or without mass, counts as v_c). The projection
+    has zeroed these nodes' relative velocity, which the particles near the plane had extrapolated through it (APIC's
+    affine part), every step: an inelastic loss a clamped end must not have. Mirrored, the grid's velocity vanishes
+    at the plane itself and the particles keep their affine motion; for a plane on a node plane with an axis normal
+    the mirror point is a node, the exact reflection (docs/method.md, 'Clamped planes')."""
+    inv = 1.0 / dx
+    for i in prange(box[0], box[1]):
+        n = np.empty(3)
+        nc = np.empty(3)
+        v = np.empty(3)
+        for j in range(box[2], box[3]):
+            for k in range(box[4], box[5]):
+                if grid[i, j, k, 0] <= 0.0:
+                    continue
+                x0, x1, x2 = origin[0] + i * dx, origin[1] + j * dx, origin[2] + k * dx
+                c = 0
+                while c < colliders.shape[0]:
+                    row = colliders[c]
+                    phi = signed_distance(colliders, c, x0, x1, x2, t_new, n) if int(row[13]) == CLAMPED else 1.0
+                    if -MIRROR_DEPTH * dx < phi < 0.0:
+                        f0 = (x0 - 2.0 * phi * n[0] - origin[0]) * inv
+                        f1 = (x1 - 2.0 * phi * n[1] - origin[1]) * inv
+                        f2 = (x2 - 2.0 * phi * n[2] - origin[2]) * inv
+                        i0, j0, k0 = int(math.floor(f0)), int(math.floor(f1)), int(math.floor(f2))
+                        a0, a1, a2 = f0 - i0, f1 - j0, f2 - k0
+                        v[0] = v[1] = v[2] = 0.0
+                        for di in range(2):
+                            for dj in range(2):
+                                for dk in range(2):
+                                    w = ((a0 if di else 1.0 - a0) * (a1 if dj else 1.0 - a1)
+                                         * (a2 if dk else 1.0 - a2))
+                                    if w == 0.0:
+                                        continue
+                                    ii, jj, kk = i0 + di, j0 + dj, k0 + dk
+                                    front = (0 <= ii < grid.shape[0] and 0 <= jj < grid.shape[1]
+                                             and 0 <= kk < grid.shape[2] and grid[ii, jj, kk, 0] > 0.0
+                                             and not behind_clamped(colliders, origin[0] + ii * dx,
+                                                                    origin[1] + jj * dx, origin[2] + kk * dx,
+                                                                    t_new, nc))
+                                    for a in range(3):
+                                        v[a] += w * (grid[ii, jj, kk, 1 + a] if front else row[10 + a])
+                        for a in range(3):
+                            grid[i, j, k, 1 + a] = 2.0 * row[10 + a] - v[a]
+                    c += int(row[15])
 
 
 @njit(cache=True, inline="always")

@@ -8,7 +8,7 @@ from pdmpm_cli.engine.contact import contact_update, meeting_box, overlap_box, s
 from pdmpm_cli.engine.crack import crack_owners
 from pdmpm_cli.engine.fracture import crack_contact, crack_particle_update, inactive_fraction
 from pdmpm_cli.engine.parallel import particle_chunks
-from pdmpm_cli.engine.transfer import advect, g2p, grid_update, p2g, position_bounds
+from pdmpm_cli.engine.transfer import advect, g2p, grid_update, has_clamped, mirror_clamped, p2g, position_bounds
 
 
 # the crack-field arguments of the transfers for a body with one field (engine/crack.py)
@@ -171,9 +171,13 @@ class CpuBackend:
 
     def grid_update(self, solver, state, dt):
         m = solver.model
+        clamped = has_clamped(m.colliders)
         for f, (grid, *_) in enumerate(self.fields(solver, state)):
-            grid_update(grid, dt, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, self.field_box(solver, f),
-                        state.time + dt, m.colliders, m.wall_boundary, m.wall_friction)
+            box = self.field_box(solver, f)
+            grid_update(grid, dt, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, box, state.time + dt,
+                        m.colliders, m.wall_boundary, m.wall_friction)
+            if clamped:
+                mirror_clamped(grid, m.origin, m.dx, box, state.time + dt, m.colliders)
 
     def contact(self, solver, state, dt):
         m = solver.model
@@ -197,9 +201,13 @@ class CpuBackend:
         m = solver.model
         t_new = state.time + dt
         self.scatter(solver, state, 0.0, False)
+        clamped = has_clamped(m.colliders)
         for f, (grid, *_) in enumerate(self.fields(solver, state)):
-            grid_update(grid, 0.0, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, self.field_box(solver, f),
-                        t_new, m.colliders, m.wall_boundary, m.wall_friction)
+            box = self.field_box(solver, f)
+            grid_update(grid, 0.0, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, box, t_new, m.colliders,
+                        m.wall_boundary, m.wall_friction)
+            if clamped:
+                mirror_clamped(grid, m.origin, m.dx, box, t_new, m.colliders)
         if solver.plan.contact:
             self.contact(solver, state, 0.0)
         vmax, bad = 0.0, 0
