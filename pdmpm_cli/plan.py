@@ -19,7 +19,7 @@ from pdmpm_cli.engine.model import Model
 from pdmpm_cli.engine.plan import BodyPlan, Plan
 from pdmpm_cli.engine.state import shape_of
 from pdmpm_cli.engine.transfer import CHANNELS, FLIP_CHANNELS
-from pdmpm_cli.errors import InputError
+from pdmpm_cli.errors import InputError, SceneValueError
 from pdmpm_cli.scene.schema import CFL, Scene
 
 # Static arrays of the Model, listed with the State's so the Plan's inventory (and memory) is complete.
@@ -130,8 +130,9 @@ def make_plan(scene: Scene, disc: Discretization, model: Model) -> Plan:
                          "--backend cpu, or remove the emitter")
     clamped = [i for i, c in enumerate(scene.colliders) if c.boundary == "clamped"]
     if clamped and sim.backend != "cpu":
-        raise InputError(f"colliders[{clamped[0]}]: boundary clamped runs on the CPU backend only (its mirror pass "
-                         f"after the grid update is not on the GPU); run with --backend cpu, or use boundary: sticky")
+        raise SceneValueError("boundary clamped runs on the CPU backend only (its mirror pass after the grid update "
+                              "is not on the GPU); run with --backend cpu, or use boundary: sticky",
+                              ("colliders", clamped[0], "boundary"))
     if emitted and scene.output.usd:
         raise InputError("output.usd cannot hold a particle count that changes between frames yet; an emitter "
                          "scene writes run.h5, VTK and PLY: set output.usd: false")

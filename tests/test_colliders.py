@@ -190,5 +190,6 @@ def test_clamped_is_for_planes_on_the_cpu(sim_factory):
     with pytest.raises(ValueError, match="plane colliders only"):
         Scene.model_validate({**BASE, "colliders": [box]})
     plane = {"type": "plane", "point": [0, 0.3, 0], "normal": [0, 1, 0], "boundary": "clamped"}
-    with pytest.raises(InputError, match="CPU backend only"):
+    with pytest.raises(InputError, match="CPU backend only") as err:
         sim_factory({"colliders": [plane], "simulation": {"backend": "cuda"}})
+    assert err.value.key == ("colliders", 0, "boundary")  # the CLI points at the scene file's line
