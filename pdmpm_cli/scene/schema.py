@@ -369,10 +369,14 @@ class ColliderBase(Strict):
                              "material sink deeper (the ball: 89 % at 0.5, 82 % at 1, 72 % at 2) [-].")
 
     @model_validator(mode="after")
-    def _penalty_separates(self):
-        if self.boundary == "clamped" and getattr(self, "type", "plane") != "plane":
+    def _clamped_planes(self):
+        if self.boundary == "clamped" and self.type != "plane":
             raise ValueError(f"boundary: clamped mirrors the grid across a plane and is for plane colliders only; "
                              f"use sticky for a {self.type}")
+        return self
+
+    @model_validator(mode="after")
+    def _penalty_separates(self):
         if self.response == "penalty" and self.boundary != "separate":
             raise ValueError(f"response: penalty pushes material out and lets it leave, which is boundary: separate; "
                              f"set boundary: separate or response: projection (boundary is {self.boundary})")

@@ -170,14 +170,18 @@ class CpuBackend:
         return self.scatter(solver, state, dt, solver.plan.contact)
 
     def grid_update(self, solver, state, dt):
+        self.update_fields(solver, state, dt, state.time + dt)
+
+    def update_fields(self, solver, state, dt, t_new):
+        """Every grid field's update (forces over dt, walls, colliders), then a clamped plane's mirror pass."""
         m = solver.model
         clamped = has_clamped(m.colliders)
         for f, (grid, *_) in enumerate(self.fields(solver, state)):
             box = self.field_box(solver, f)
-            grid_update(grid, dt, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, box, state.time + dt,
-                        m.colliders, m.wall_boundary, m.wall_friction)
+            grid_update(grid, dt, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, box, t_new, m.colliders,
+                        m.wall_boundary, m.wall_friction)
             if clamped:
-                mirror_clamped(grid, m.origin, m.dx, box, state.time + dt, m.colliders)
+                mirror_clamped(grid, m.origin, m.dx, box, t_new, m.colliders)
 
     def contact(self, solver, state, dt):
         m = solver.model
@@ -201,13 +205,7 @@ class CpuBackend:
         m = solver.model
         t_new = state.time + dt
         self.scatter(solver, state, 0.0, False)
-        clamped = has_clamped(m.colliders)
-        for f, (grid, *_) in enumerate(self.fields(solver, state)):
-            box = self.field_box(solver, f)
-            grid_update(grid, 0.0, m.gravity, m.wind_velocity, m.wind_drag, m.origin, m.dx, box, t_new, m.colliders,
-                        m.wall_boundary, m.wall_friction)
-            if clamped:
-                mirror_clamped(grid, m.origin, m.dx, box, t_new, m.colliders)
+        self.update_fields(solver, state, 0.0, t_new)
         if solver.plan.contact:
             self.contact(solver, state, 0.0)
         vmax, bad = 0.0, 0
