@@ -2,13 +2,14 @@
 calibration and the fixed end').
 
 Usage: python bench/bar_ends.py [--sampling relaxed jittered lattice] [--ends fixed clamped mirrored]
-       [--width 4] [--flip 0]
+       [--width 4] [--flip 0] [--step 0.133 0.0667]
 - fixed: Sulsky's bar as tests/test_dynamics.py runs it (a sticky wall at x0, slip walls on the long sides,
   2 periods).
 - clamped: the same with the wall at x0 `boundary: clamped` (its nodes mirrored, not zeroed).
 - mirrored: the same bar twice as long with no wall at x0, in its antisymmetric first mode: its middle is the fixed
   end's node by symmetry, so each half is the fixed bar without the wall's grid nodes. Analytic period 10 s for both.
 - --width: the bar's width in cells (the bar of the tests is 4 cells, 8 particles, wide).
+- --step k: the step forced to k dx / c (`Sim.force_step`; the 0.05 s frames still cap it) instead of the Plan's.
 Per row: the mean stiffness along the axis over M (`axial_stiffness`), the period from the zero crossings of the
 (half-)bar's centre-of-mass velocity, the decay of its amplitude per period and the steps.
 """
@@ -64,9 +65,11 @@ def scene(sampling: str, ends: str, width: int, flip: float) -> tuple[dict, floa
     return d, x0
 
 
-def bar(sampling: str, ends: str, width: int, flip: float):
+def bar(sampling: str, ends: str, width: int, flip: float, step: float | None = None):
     d, mid = scene(sampling, ends, width, flip)
     sim = Sim(d)
+    if step is not None:
+        sim.force_step(step)
     s, m = sim.state, sim.model.particle_mass
     if ends == "mirrored":
         s.particle_v[:, 0] = BAR_V0 * np.sin(np.pi * (s.particle_x[:, 0] - mid) / (2 * BAR_LENGTH))
@@ -86,7 +89,8 @@ def bar(sampling: str, ends: str, width: int, flip: float):
     sim.advance(20.0, record)
     t, v = np.array(t), np.array(v)
     amp = [np.abs(v[(t >= a) & (t < a + 10.0)]).max() for a in (0.0, 10.0)]
-    print(f"| {sampling} | {ends} | {width} | {flip:g} | {axial_stiffness(sim):.3f} | {period(t, v):.3f} | "
+    print(f"| {sampling} | {ends} | {width} | {flip:g} | {'-' if step is None else f'{step:g}'} | "
+          f"{axial_stiffness(sim):.3f} | {period(t, v):.3f} | "
           f"{100 * (1 - amp[1] / amp[0]):.2f} % | {s.step} | {time.perf_counter() - t0:.0f} |", flush=True)
 
 
@@ -96,14 +100,17 @@ def main():
     ap.add_argument("--ends", nargs="+", default=["fixed", "clamped", "mirrored"])
     ap.add_argument("--width", type=int, nargs="+", default=[4], help="cells")
     ap.add_argument("--flip", type=float, nargs="+", default=[0.0])
+    ap.add_argument("--step", type=float, nargs="+", default=[None], help="k: the step forced to k dx / c")
     a = ap.parse_args()
-    print("| sampling | ends | width [cells] | flip | axial stiffness / M | period [s] | decay per period | steps | wall [s] |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| sampling | ends | width [cells] | flip | step [dx/c] | axial stiffness / M | period [s] | decay per period "
+          "| steps | wall [s] |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for sampling in a.sampling:
         for width in a.width:
             for ends in a.ends:
                 for flip in a.flip:
-                    bar(sampling, ends, width, flip)
+                    for step in a.step:
+                        bar(sampling, ends, width, flip, step)
 
 
 if __name__ == "__main__":
