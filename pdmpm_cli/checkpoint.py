@@ -199,6 +199,7 @@ def restore(ckpt: Checkpoint, state: State, solver) -> None:
                          f"{ckpt.attrs['pdmpm_version']}); start a new run with --overwrite")
     for name, array in ckpt.arrays.items():
         setattr(state, name, array)
+    state.fit_transient_bonds()
     for name, default in SCALARS.items():
         setattr(state, name, type(default)(ckpt.attrs[f"state_{name}"]))
     solver.bind(state)

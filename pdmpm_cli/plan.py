@@ -40,6 +40,8 @@ def state_fields(model: Model, backend: str) -> tuple[F.Field, ...]:
         out += F.CRACK_SIDES
     if any(k.uses_fbar(b.params) for k, b in zip(kinds, model.bodies)):
         out += F.FBAR
+    if any(k.reads_grid_density(b.params) for k, b in zip(kinds, model.bodies)):
+        out += F.GRID_DENSITY
     for kind in dict.fromkeys(kinds):
         out += kind.fields
     if any(b.fracture is not None for b in model.bodies):

@@ -11,7 +11,7 @@ import pytest
 from pdmpm_cli.checkpoint import restore, snapshot
 from pdmpm_cli.engine.backends.cpu import UNSPLIT
 from pdmpm_cli.engine.materials.viscoelastic import grid_volume_ratios, volume_pressures
-from pdmpm_cli.engine.transfer import p2g_at
+from pdmpm_cli.engine.transfer import grid_density, p2g_at, stencil
 from tests import fluid_cases as F
 from tests.conftest import merge
 
@@ -45,9 +45,10 @@ def test_pressure_term_is_the_stress_virial():
 
 
 def test_grid_volume_ratio_lowers_j_only_where_particles_crowd():
-    """J <- min(J, rho0 / rho_grid) (grid_volume_ratio_at): a lattice at the rest spacing keeps J = 1 everywhere
-    (inside, the grid density is rho0; at its faces less, which must not pull); the same lattice squeezed to 0.98 of
-    the spacing gets J = 0.98^3 where the stencil is full, and its faces keep J = 1."""
+    """J <- min(J, rho0 / rho_grid) (grid_volume_ratio_at, rho_grid as G2P gathers it: transfer.grid_density): a
+    lattice at the rest spacing keeps J = 1 everywhere (inside, the grid density is rho0; at its faces less, which
+    must not pull); the same lattice squeezed to 0.98 of the spacing gets J = 0.98^3 where the stencil is full, and
+    its faces keep J = 1."""
     dx, n = 0.1, 20
     h, rho0 = dx / 2, 1000.0
     for scale in (1.0, 0.98):
@@ -59,8 +60,12 @@ def test_grid_volume_ratio_lowers_j_only_where_particles_crowd():
             p2g_at(p, x, np.zeros_like(x), np.zeros((len(x), 3, 3)), mass, np.zeros_like(x), np.zeros(0, np.uint8),
                    np.zeros(0, np.uint8), 0.0, np.zeros(3), 1 / dx, g, np.empty(4), np.empty(4), np.empty(4),
                    *UNSPLIT, 0)
+        rho, w = np.empty(len(x)), [np.empty(4) for _ in range(3)]
+        for p in range(len(x)):
+            bx, by, bz = stencil(x, p, np.zeros(3), 1 / dx, *w)[3:]
+            rho[p] = grid_density(g, bx, by, bz, *w) / dx**3
         j = np.ones(len(x))
-        grid_volume_ratios(0, len(x), rho0, g, np.zeros(3), 1 / dx, np.zeros(0, np.uint8), x, j)
+        grid_volume_ratios(0, len(x), rho0, np.zeros(0, np.uint8), rho, j)
         depth = np.min(np.minimum(np.arange(n), n - 1 - np.arange(n))[np.indices((n,) * 3).reshape(3, -1)], axis=0)
         inside, face = depth >= 8, depth == 0
         assert inside.any() and np.all(j[face] == 1.0)

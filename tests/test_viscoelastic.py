@@ -30,14 +30,19 @@ class Body:
         self.force_visc = np.zeros(len(self.bond_nbr))
         self.dtheta = np.zeros(self.n)
         self.force = np.zeros((self.n, 3))
+        self.lps = np.zeros((self.n, 2))
+        self.eta = np.zeros(len(self.bond_nbr))
+        self.deta = np.zeros(len(self.bond_nbr))
+        self.w = np.zeros(len(self.bond_nbr))
 
     def step(self, x, dt):
         """One force evaluation at positions x, then x becomes the previous configuration (the caller's job)."""
-        incremental_dilatation(0, self.n, self.delta, x, self.x_prev, self.volume, self.bond_start, self.bond_nbr,
-                               self.len0, self.m, self.dtheta)
-        broken = viscoelastic_forces(0, self.n, self.bulk, self.mu, self.tau, self.fraction, self.break_stretch,
-                                     self.delta, dt, x, self.x_prev, self.volume, self.bond_start, self.bond_nbr,
-                                     self.m, self.dtheta, self.len0, self.force_el, self.force_visc, self.force)
+        incremental_dilatation(0, self.n, self.bulk, self.mu, self.delta, x, self.x_prev, self.volume,
+                               self.bond_start, self.bond_nbr, self.len0, self.m, self.dtheta, self.lps, self.eta,
+                               self.deta, self.w)
+        broken = viscoelastic_forces(0, self.n, self.tau, self.fraction, self.break_stretch, dt, x, self.volume,
+                                     self.bond_start, self.bond_nbr, self.dtheta, self.lps, self.len0, self.eta,
+                                     self.deta, self.w, self.force_el, self.force_visc, self.force)
         self.x_prev[:] = x
         return broken
 

@@ -1,7 +1,8 @@
 """Declarations of the arrays a run allocates: where each lives (per particle, per bond, on the grid), its shape,
 dtype and initial value. The engine's own features declare theirs here; a material declares its own in its module
 (MaterialKind.fields). The Plan picks the declarations a scene needs; State.allocate allocates exactly those,
-checkpoints carry every one that is not transient, and family rebuilds carry every per-bond one.
+checkpoints carry every one that is not transient, and family rebuilds carry every per-bond one that is not
+transient.
 
 Precision (simulation.precision): with float32 the Plan stores the per-particle and per-bond float arrays in single
 precision (`Field.dtype_for`), except those declared `precise`, whose values float32 would spoil. Positions: a step
@@ -92,6 +93,9 @@ BOND_FACTORS = (
 )
 FBAR = (Field("particle_Fbar", PARTICLE, (3, 3), transient=True, stand_in=1, precise=True,
               doc="averaged deformation gradient (eq. 4) [-]; read only where mu > 0"),) + BOND_FACTORS
+# The grid's mass density at each particle, which G2P gathers from the nodes it reads anyway (a liquid's volume ratio).
+GRID_DENSITY = (Field("particle_rho", PARTICLE, transient=True, precise=True,
+                      doc="mass density of the step's grid at the particle, sum_i w_i m_i / dx^3 [kg/m^3]"),)
 # Bond passes that evaluate each pair once and scatter (the elastic and plastic forces).
 PAIR = (Field("particle_force_private", GRID, transient=True, doc="per-thread pair-force scatter targets (CPU) [N]"),
         ) + BOND_FACTORS

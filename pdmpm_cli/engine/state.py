@@ -61,8 +61,16 @@ class State:
         return {n: a for n, a in self.arrays.items() if not self.declared[n].transient}
 
     def bond_arrays(self) -> dict[str, np.ndarray]:
-        """Every allocated per-bond array except the families themselves: what a family rebuild carries along."""
+        """Every allocated per-bond array except the families themselves: what a family rebuild carries along (the
+        transient ones only resized) and what the CUDA backend copies down and back around it."""
         return {n: a for n, a in self.arrays.items() if self.declared[n].where == BOND and n != "bond_nbr"}
+
+    def fit_transient_bonds(self):
+        """Reallocate the transient per-bond arrays to the families' size (after a rebuild or a restore changed it):
+        they are refilled before they are read, so only their length matters."""
+        for name, array in self.bond_arrays().items():
+            if self.declared[name].transient and len(array) != len(self.bond_nbr):
+                self.arrays[name] = np.empty((len(self.bond_nbr),) + array.shape[1:], array.dtype)
 
     def copy(self) -> State:
         return State(self.declared, {n: a.copy() for n, a in self.arrays.items()}, **self.scalars)

@@ -404,9 +404,21 @@ def affine_sums(grid, grid1, c, bx, by, bz, fx, fy, fz, dx, wx, wy, wz, sided, p
 
 
 @njit(cache=True, inline="always")
+def grid_density(grid, bx, by, bz, wx, wy, wz):
+    """sum_i w_i m_i over a particle's 64 nodes [kg] (the grid's mass channel 0)."""
+    mass = 0.0
+    for i in range(4):
+        for j in range(4):
+            wij = wx[i] * wy[j]
+            for k in range(4):
+                mass += wij * wz[k] * grid[bx + i, by + j, bz + k, 0]
+    return mass
+
+
+@njit(cache=True, inline="always")
 def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip, particle_crack,
-           particle_x, particle_v, particle_C, wx, wy, wz, v, nrm, grid1, owner, rest_x, crack_n, piece, half_h,
-           cbox):
+           particle_x, particle_v, particle_C, particle_rho, wx, wy, wz, v, nrm, grid1, owner, rest_x, crack_n, piece,
+           half_h, cbox):
     """G2P of particle p: velocity and APIC affine matrix (step 5), pins, particle collisions (step 6), advection.
     Returns its speed, -1 when it is not finite, 0 for a crack-surface particle (left to its own integrator).
 
@@ -414,7 +426,9 @@ def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity
     the particle carried and the grid did not, (v_p, C_p) - G2P(v_I^n) (Fei et al. 2021, eq. 9, applied to the
     affine matrix too: APIC's transfers are those of PIC for the pair (v, C) under the mass m_p diag(1, D_p)), and
     the particle does not move here: `advect_at` moves it with the re-mapped velocity (MUSL). With crack fields
-    (owner not empty) grid and grid1 are the two sides of the body's field (engine/crack.py)."""
+    (owner not empty) grid and grid1 are the two sides of the body's field (engine/crack.py). Where particle_rho is
+    allocated (a material reads it: MaterialKind.reads_grid_density) it gets the grid's mass density at the
+    particle, sum_i w_i m_i / dx^3, from the nodes the velocity sums just read (pinned particles: not written)."""
     if particle_crack.shape[0] > 0 and particle_crack[p] != 0:
         return 0.0
     dx = 1.0 / inv_dx
@@ -431,6 +445,8 @@ def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity
         v0, v1, v2, b00, b01, b02, b10, b11, b12, b20, b21, b22 = affine_sums(grid, grid1, 1, bx, by, bz, fx, fy, fz,
                                                                              dx, wx, wy, wz, sided, p, owner, rest_x,
                                                                              crack_n, piece, half_h)
+        if particle_rho.shape[0] > 0:
+            particle_rho[p] = grid_density(grid, bx, by, bz, wx, wy, wz) * inv_dx * inv_dx * inv_dx
         if remapped:
             o0, o1, o2, a00, a01, a02, a10, a11, a12, a20, a21, a22 = affine_sums(grid, grid1, 4, bx, by, bz, fx, fy,
                                                                                  fz, dx, wx, wy, wz, sided, p, owner,
@@ -468,7 +484,7 @@ def g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity
 
 @njit(parallel=True, cache=True)
 def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip, particle_crack,
-        particle_x, particle_v, particle_C, chunks, grid1, owner, rest_x, crack_n, piece, half_h, cbox):
+        particle_x, particle_v, particle_C, particle_rho, chunks, grid1, owner, rest_x, crack_n, piece, half_h, cbox):
     """`g2p_at` for every particle, in `chunks` static chunks, each with its own scratch. Returns (max particle
     speed, number of non-finite particles)."""
     n = particle_x.shape[0]
@@ -482,8 +498,8 @@ def g2p(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_
         nrm = np.empty(3)
         for p in range(t * n // chunks, (t + 1) * n // chunks):
             s = g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip,
-                       particle_crack, particle_x, particle_v, particle_C, wx, wy, wz, v, nrm, grid1, owner, rest_x,
-                       crack_n, piece, half_h, cbox)
+                       particle_crack, particle_x, particle_v, particle_C, particle_rho, wx, wy, wz, v, nrm, grid1,
+                       owner, rest_x, crack_n, piece, half_h, cbox)
             if s < 0.0:
                 chunk_bad[t] += 1
             else:

@@ -169,8 +169,8 @@ class CpuBackend:
             boxes + [b if b[1] > b[0] else None for b in self.crack_boxes])
         return self.scatter(solver, state, dt, solver.plan.contact)
 
-    def grid_update(self, solver, state, dt):
-        self.update_fields(solver, state, dt, state.time + dt)
+    def grid_update(self, solver, state, kick, t_new):
+        self.update_fields(solver, state, kick, t_new)
 
     def update_fields(self, solver, state, dt, t_new):
         """Every grid field's update (forces over dt, walls, colliders), then a clamped plane's mirror pass."""
@@ -194,7 +194,8 @@ class CpuBackend:
         for grid, far, s, e, sides, cracked in self.readers(solver, state):
             v, b = g2p(grid, dt, m.origin, 1.0 / m.dx, state.time + dt, m.colliders, m.pin_mask[s:e],
                        m.pin_velocity[s:e], m.pin_stop[s:e], m.flip, cracked,
-                       state.particle_x[s:e], state.particle_v[s:e], state.particle_C[s:e], particle_chunks(), far,
+                       state.particle_x[s:e], state.particle_v[s:e], state.particle_C[s:e], state.particle_rho[s:e],
+                       particle_chunks(), far,
                        *sides)
             vmax, bad = max(vmax, v), bad + b
         return vmax, bad
@@ -216,7 +217,7 @@ class CpuBackend:
             vmax, bad = max(vmax, v), bad + b
         return vmax, bad
 
-    def crack(self, solver, state, dt) -> tuple[float, int]:
+    def crack(self, solver, state, kick, dt) -> tuple[float, int]:
         """Crack particles take their kick and meet their own body's material, then (contact: a field per body)
         the other bodies' material and the far side of their own body's cracks with no second kick (dt = 0), as
         they met all material on one shared grid (crack_index is sorted, bodies are particle ranges)."""
@@ -229,7 +230,7 @@ class CpuBackend:
                     which = idx[lo:hi] if not want else idx[:0]
                 else:
                     which = idx if want else np.concatenate((idx[:lo], idx[hi:]))
-                crack_contact(grid, dt if own else 0.0, m.gravity, m.origin, 1.0 / m.dx, which,
+                crack_contact(grid, kick if own else 0.0, m.gravity, m.origin, 1.0 / m.dx, which,
                               state.particle_damage, m.particle_mass, m.particle_volume, state.particle_force,
                               state.particle_x, state.particle_v)
         return crack_particle_update(dt, state.time + dt, m.colliders, solver.valid_lo, solver.valid_hi, idx,

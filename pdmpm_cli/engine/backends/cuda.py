@@ -259,7 +259,7 @@ def add_stats(p, s, particle_x, stats):
 
 @cuda.jit
 def g2p_kernel(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip, particle_crack,
-               particle_x, particle_v, particle_C, stats, no_owner, no_rows, no_piece, no_box):
+               particle_x, particle_v, particle_C, particle_rho, stats, no_owner, no_rows, no_piece, no_box):
     p = cuda.grid(1)
     if p < particle_x.shape[0]:
         wx = cuda.local.array(4, float64)
@@ -268,8 +268,8 @@ def g2p_kernel(grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocit
         v = cuda.local.array(3, float64)
         nrm = cuda.local.array(3, float64)
         s = d_g2p_at(p, grid, dt, origin, inv_dx, t_new, colliders, pin_mask, pin_velocity, pin_stop, flip,
-                     particle_crack, particle_x, particle_v, particle_C, wx, wy, wz, v, nrm, grid, no_owner, no_rows,
-                     no_rows, no_piece, 0.0, no_box)
+                     particle_crack, particle_x, particle_v, particle_C, particle_rho, wx, wy, wz, v, nrm, grid,
+                     no_owner, no_rows, no_rows, no_piece, 0.0, no_box)
         add_stats(p, s, particle_x, stats)
 
 
@@ -484,12 +484,12 @@ class CudaBackend:
         solver.contact_box = contact.overlap_box(boxes)
         self.dev_contact_box = cuda.to_device(solver.contact_box)
 
-    def grid_update(self, solver, state, dt):
+    def grid_update(self, solver, state, kick, t_new):
         m, b = solver.model, solver.box
         for grid, _, _ in self.fields(solver):
-            launch(grid_update_kernel, int((b[1] - b[0]) * (b[3] - b[2]) * (b[5] - b[4])), grid, dt,
+            launch(grid_update_kernel, int((b[1] - b[0]) * (b[3] - b[2]) * (b[5] - b[4])), grid, kick,
                    solver.m.gravity, solver.m.wind_velocity, m.wind_drag, solver.m.origin, m.dx, self.box,
-                   state.time + dt, solver.m.colliders, m.wall_boundary, m.wall_friction)
+                   t_new, solver.m.colliders, m.wall_boundary, m.wall_friction)
 
     def contact(self, solver, state, dt):
         c = solver.contact_box
@@ -507,7 +507,7 @@ class CudaBackend:
             pins = (rows(d.pin_mask, s, e), rows(d.pin_velocity, s, e), rows(d.pin_stop, s, e))
             launch(g2p_kernel, e - s, grid, dt, d.origin, 1.0 / m.dx, state.time + dt, d.colliders, *pins, m.flip,
                    rows(a.particle_crack, s, e), rows(a.particle_x, s, e), rows(a.particle_v, s, e),
-                   rows(a.particle_C, s, e), self.dev_stats, *self.unsplit)
+                   rows(a.particle_C, s, e), rows(a.particle_rho, s, e), self.dev_stats, *self.unsplit)
         if solver.plan.remap:
             return 0.0, 0  # read back after the remap's position pass
         self.dev_stats.copy_to_host(self.stats)
@@ -537,7 +537,7 @@ class CudaBackend:
         self.dev_stats.copy_to_host(self.stats)
         return float(self.stats[STAT_VMAX]), int(self.stats[STAT_BAD])
 
-    def crack(self, solver, state, dt) -> tuple[float, int]:
+    def crack(self, solver, state, kick, dt) -> tuple[float, int]:
         """Crack particles: their kick and contact with their own body's material, then with the other bodies'
         (dt = 0: no second kick), in the CPU's order (serial, on one thread), and update; their speeds and positions
         open this step's statistics, which G2P completes and reads back."""
@@ -546,7 +546,7 @@ class CudaBackend:
         for own in (True, False):  # with one field the second pass has no particles
             for grid, s, end in fields:
                 lo, hi = np.searchsorted(solver.crack_index, (s, end))
-                parts = ((lo, hi, dt),) if own else ((0, lo, 0.0), (hi, len(solver.crack_index), 0.0))
+                parts = ((lo, hi, kick),) if own else ((0, lo, 0.0), (hi, len(solver.crack_index), 0.0))
                 for i0, i1, step in parts:
                     if i1 > i0:
                         launch(crack_contact_kernel, 1, grid, step, d.gravity, d.origin, 1.0 / m.dx,

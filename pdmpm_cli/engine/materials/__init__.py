@@ -35,8 +35,8 @@ def declared_fields() -> dict:
     """Every array the engine or a registered material declares, by name (engine.fields.Field)."""
     from pdmpm_cli.engine import fields
 
-    out = {f.name: f for f in fields.CORE + fields.GRIDS + fields.FBAR + fields.PAIR + fields.FRACTURE
-                                  + fields.FRACTURE_CELLS + fields.CONTACT + fields.CRACK_SIDES}
+    out = {f.name: f for f in fields.CORE + fields.GRIDS + fields.FBAR + fields.GRID_DENSITY + fields.PAIR
+                                  + fields.FRACTURE + fields.FRACTURE_CELLS + fields.CONTACT + fields.CRACK_SIDES}
     for kind in MATERIALS.values():
         for f in kind.fields:
             if out.setdefault(f.name, f) != f:

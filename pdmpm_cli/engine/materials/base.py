@@ -39,6 +39,8 @@ class MaterialKind:
     # appended (families with their neighbours), on the host State; None: the material cannot be emitted
     outputs: dict[str, Callable] = field(default_factory=dict)  # frame field name -> fn(model, state) -> array
     uses_fbar: Callable[[Any], bool] = lambda params: False  # whether its forces read Fbar (eq. 4)
+    reads_grid_density: Callable[[Any], bool] = lambda params: False  # whether its after_move reads the grid's mass
+    # density at each particle (particle_rho, which G2P then gathers)
     flows: bool = False  # its families are rebuilt from current neighbours: no reference frame a crack's sides can
     # be told in (engine/crack.py leaves it out)
     computes_fbar: bool = False  # its before_forces computes its Fbar itself, with its own sums over the same bonds

@@ -43,8 +43,6 @@ from pdmpm_cli.engine.bonds import bond_vector, influence
 from pdmpm_cli.engine.fields import BOND, PARTICLE, Field
 from pdmpm_cli.engine.kernel import COPY_ROWS, Kernel
 from pdmpm_cli.engine.materials.base import MaterialKind
-from pdmpm_cli.engine.parallel import SCRATCH_CHUNKS
-from pdmpm_cli.engine.transfer import stencil
 from pdmpm_cli.spec import Strict
 
 
@@ -72,7 +70,8 @@ class Schema(Strict):
         "None: bonds never break [-].")
     rebuild_distance: float = Doc(
         0.5, gt=0, le=2, description="Families are rebuilt when some particle has moved this multiple of the "
-        "particle spacing, relative to the body's mean motion, since the last rebuild [-].")
+        "particle spacing since the last rebuild, relative to the middle of the body's range of displacements "
+        "(only relative motion counts) [-].")
     bulk_modulus: float | None = Doc(
         None, gt=0, description="Bulk modulus K of the pressure p = K (1 - J) from each particle's volume ratio J, "
         "the material's whole bulk response. None: the weakly compressible rule K = density (10 v)^2, v the "
@@ -142,32 +141,46 @@ def lps_weighted_volume(start, end, delta, particle_volume, bond_start, bond_nbr
 
 
 @njit(cache=True)
-def incremental_dilatation_at(p, delta, particle_x, particle_x_prev, particle_volume, bond_start, bond_nbr,
-                              bond_len0, particle_m, particle_dtheta):
-    """dtheta_p = (3 / m_p) sum_q w L0 de V_q, the dilatation of the step's increment -> particle_dtheta[p]."""
+def incremental_dilatation_at(p, bulk, mu, delta, particle_x, particle_x_prev, particle_volume, bond_start, bond_nbr,
+                              bond_len0, particle_m, particle_dtheta, particle_lps, bond_eta, bond_deta, bond_w):
+    """dtheta_p = (3 / m_p) sum_q w L0 de V_q, the dilatation of the step's increment -> particle_dtheta[p]. For the
+    force pass, which would otherwise take each bond's square roots and divisions again: p's coefficients 3 K
+    dtheta_p / m_p and 15 mu / m_p -> particle_lps[p], each intact bond's current length, increment de and
+    influence w -> bond_eta, bond_deta, bond_w."""
     s = 0.0
     for b in range(bond_start[p], bond_start[p + 1]):
         l0 = bond_len0[b]
         if l0 > 0.0:
             q = bond_nbr[b]
-            de = bond_vector(particle_x, p, q)[3] - bond_vector(particle_x_prev, p, q)[3]
-            s += influence(l0, delta) * l0 * de * particle_volume[q]
-    particle_dtheta[p] = 3.0 * s / particle_m[p] if particle_m[p] > 0.0 else 0.0
+            l = bond_vector(particle_x, p, q)[3]
+            de = l - bond_vector(particle_x_prev, p, q)[3]
+            w = influence(l0, delta)
+            bond_eta[b] = l
+            bond_deta[b] = de
+            bond_w[b] = w
+            s += w * l0 * de * particle_volume[q]
+    m = particle_m[p]
+    dtheta = 3.0 * s / m if m > 0.0 else 0.0
+    particle_dtheta[p] = dtheta
+    particle_lps[p, 0] = 3.0 * bulk * dtheta / m if m > 0.0 else 0.0
+    particle_lps[p, 1] = 15.0 * mu / m if m > 0.0 else 0.0
 
 
 @njit(parallel=True, cache=True)
-def incremental_dilatation(start, end, delta, particle_x, particle_x_prev, particle_volume, bond_start, bond_nbr,
-                           bond_len0, particle_m, particle_dtheta):
+def incremental_dilatation(start, end, bulk, mu, delta, particle_x, particle_x_prev, particle_volume, bond_start,
+                           bond_nbr, bond_len0, particle_m, particle_dtheta, particle_lps, bond_eta, bond_deta, bond_w):
     """`incremental_dilatation_at` for particles start..end-1."""
     for p in prange(start, end):
-        incremental_dilatation_at(p, delta, particle_x, particle_x_prev, particle_volume, bond_start, bond_nbr,
-                                  bond_len0, particle_m, particle_dtheta)
+        incremental_dilatation_at(p, bulk, mu, delta, particle_x, particle_x_prev, particle_volume, bond_start,
+                                  bond_nbr, bond_len0, particle_m, particle_dtheta, particle_lps, bond_eta, bond_deta,
+                                  bond_w)
 
 
 @njit(cache=True, inline="always")
-def one_sided_increment(bulk, mu, dtheta, m, w, l0, de):
-    """Bulk and deviatoric parts of the LPS force increment dt of one side of a bond (eq. 12's K.U)."""
-    return 3.0 * bulk * dtheta / m * w * l0, 15.0 * mu / m * w * (de - dtheta * l0 / 3.0)
+def one_sided_increment(lps, dtheta, w, l0, de):
+    """Bulk and deviatoric parts of the LPS force increment dt of one side of a bond (eq. 12's K.U); lps: the side's
+    (3 K dtheta / m, 15 mu / m)."""
+    return lps[0] * w * l0, lps[1] * w * (de - dtheta * l0 / 3.0)
 
 
 @njit(cache=True)
@@ -184,12 +197,13 @@ def relaxation_factors(tau, dt):
 
 
 @njit(cache=True)
-def viscoelastic_force_at(p, bulk, mu, tau, fraction, break_stretch, delta, dt, particle_x, particle_x_prev,
-                          particle_volume, bond_start, bond_nbr, particle_m, particle_dtheta, bond_len0, bond_force_el,
+def viscoelastic_force_at(p, tau, fraction, break_stretch, dt, particle_x, particle_volume, bond_start, bond_nbr,
+                          particle_dtheta, particle_lps, bond_len0, bond_eta, bond_deta, bond_w, bond_force_el,
                           bond_force_visc, particle_force):
     """Eq. 12 with SLS relaxation for particle p -> bond_len0 (breaks), bond_force_el/visc, particle_force[p];
     returns the bonds it broke.
 
+    particle_lps, bond_eta, bond_deta, bond_w: from incremental_dilatation_at.
     Over-stretched bonds break first (each stored direction by its own particle, so both copies, counted as 2).
     Then every intact bond's pair forces grow by the step's LPS increment and f_p = sum_q (el + visc) dir(eta)
     V_p V_q overwrites particle_force[p]. Both copies of a bond do the same operations in the same order (lower
@@ -206,19 +220,22 @@ def viscoelastic_force_at(p, bulk, mu, tau, fraction, break_stretch, delta, dt, 
         if l0 <= 0.0:
             continue
         q = bond_nbr[b]
-        e0, e1, e2, l = bond_vector(particle_x, p, q)
+        e0 = particle_x[q, 0] - particle_x[p, 0]
+        e1 = particle_x[q, 1] - particle_x[p, 1]
+        e2 = particle_x[q, 2] - particle_x[p, 2]
+        l = bond_eta[b]
         if l / l0 - 1.0 > break_stretch:
             bond_len0[b] = -1.0
             bond_force_el[b] = 0.0
             bond_force_visc[b] = 0.0
             broken += 1
             continue
-        de = l - bond_vector(particle_x_prev, p, q)[3]
-        w = influence(l0, delta)
+        de = bond_deta[b]
+        w = bond_w[b]
         lo = p if p < q else q
         hi = q if p < q else p
-        b_lo, d_lo = one_sided_increment(bulk, mu, particle_dtheta[lo], particle_m[lo], w, l0, de)
-        b_hi, d_hi = one_sided_increment(bulk, mu, particle_dtheta[hi], particle_m[hi], w, l0, de)
+        b_lo, d_lo = one_sided_increment(particle_lps[lo], particle_dtheta[lo], w, l0, de)
+        b_hi, d_hi = one_sided_increment(particle_lps[hi], particle_dtheta[hi], w, l0, de)
         ddev = d_lo + d_hi
         bond_force_el[b] += (b_lo + b_hi) + keep * ddev
         bond_force_visc[b] = bond_force_visc[b] * decay + fraction * ddev * gain
@@ -234,15 +251,15 @@ def viscoelastic_force_at(p, bulk, mu, tau, fraction, break_stretch, delta, dt, 
 
 
 @njit(parallel=True, cache=True)
-def viscoelastic_forces(start, end, bulk, mu, tau, fraction, break_stretch, delta, dt, particle_x, particle_x_prev,
-                        particle_volume, bond_start, bond_nbr, particle_m, particle_dtheta, bond_len0, bond_force_el,
+def viscoelastic_forces(start, end, tau, fraction, break_stretch, dt, particle_x, particle_volume, bond_start,
+                        bond_nbr, particle_dtheta, particle_lps, bond_len0, bond_eta, bond_deta, bond_w, bond_force_el,
                         bond_force_visc, particle_force):
     """`viscoelastic_force_at` for particles start..end-1; returns the bonds broken."""
     broken = 0
     for p in prange(start, end):
-        broken += viscoelastic_force_at(p, bulk, mu, tau, fraction, break_stretch, delta, dt, particle_x,
-                                        particle_x_prev, particle_volume, bond_start, bond_nbr, particle_m,
-                                        particle_dtheta, bond_len0, bond_force_el, bond_force_visc, particle_force)
+        broken += viscoelastic_force_at(p, tau, fraction, break_stretch, dt, particle_x, particle_volume,
+                                        bond_start, bond_nbr, particle_dtheta, particle_lps, bond_len0, bond_eta,
+                                        bond_deta, bond_w, bond_force_el, bond_force_visc, particle_force)
     return broken
 
 
@@ -286,34 +303,23 @@ def volume_pressures(start, end, bulk, dt_prev, dt, inv_dx, pin_mask, particle_v
 
 
 @njit(cache=True)
-def grid_volume_ratio_at(p, density, grid, origin, inv_dx, pin_mask, particle_x_prev, particle_J, wx, wy, wz):
-    """J_p <- min(J_p, density / rho_p), rho_p = sum_i N_i(x_p) m_i / dx^3 the mass density of the last P2G's
-    grid at the position it scattered from (x_prev; a particle density correction, one-sided): where the
-    particles crowd more than J says, the pressure sees it. Only there: at a free surface or a wall the stencil is
-    part empty and rho_p falls below the density, which must not pull (tension). Pinned particles keep their J.
-    wx, wy, wz: scratch for the stencil's weights."""
+def grid_volume_ratio_at(p, density, pin_mask, particle_rho, particle_J):
+    """J_p <- min(J_p, density / rho_p), rho_p the mass density of the step's grid at the particle (particle_rho,
+    gathered by G2P where P2G scattered from; a particle density correction, one-sided): where the particles crowd
+    more than J says, the pressure sees it. Only there: at a free surface or a wall the stencil is part empty and
+    rho_p falls below the density, which must not pull (tension). Pinned particles keep their J."""
     if pin_mask.shape[0] > 0 and pin_mask[p] != 0:
         return
-    _, _, _, bx, by, bz = stencil(particle_x_prev, p, origin, inv_dx, wx, wy, wz)
-    mass = 0.0
-    for i in range(4):
-        for j in range(4):
-            wij = wx[i] * wy[j]
-            for k in range(4):
-                mass += wij * wz[k] * grid[bx + i, by + j, bz + k, 0]
-    rho = mass * inv_dx * inv_dx * inv_dx
+    rho = particle_rho[p]
     if rho * particle_J[p] > density:
         particle_J[p] = density / rho
 
 
 @njit(parallel=True, cache=True)
-def grid_volume_ratios(start, end, density, grid, origin, inv_dx, pin_mask, particle_x_prev, particle_J):
-    """`grid_volume_ratio_at` for particles start..end-1, in chunks with one set of weight scratch each."""
-    n = end - start
-    for t in prange(SCRATCH_CHUNKS):
-        wx, wy, wz = np.empty(4), np.empty(4), np.empty(4)
-        for p in range(start + t * n // SCRATCH_CHUNKS, start + (t + 1) * n // SCRATCH_CHUNKS):
-            grid_volume_ratio_at(p, density, grid, origin, inv_dx, pin_mask, particle_x_prev, particle_J, wx, wy, wz)
+def grid_volume_ratios(start, end, density, pin_mask, particle_rho, particle_J):
+    """`grid_volume_ratio_at` for particles start..end-1."""
+    for p in prange(start, end):
+        grid_volume_ratio_at(p, density, pin_mask, particle_rho, particle_J)
 
 
 SHIFT_STRENGTH = 0.1  # a pair closer than the reach r_s separates by up to 2 x this x r_s per step
@@ -437,7 +443,7 @@ def apply_shifts(start, end, delta, pin_mask, bond_start, bond_nbr, bond_len0, p
 
 
 VOLUME_PRESSURE = Kernel(volume_pressure_at, volume_pressures)
-GRID_VOLUME_RATIO = Kernel(grid_volume_ratio_at, grid_volume_ratios, scratch=(("wx", 4), ("wy", 4), ("wz", 4)))
+GRID_VOLUME_RATIO = Kernel(grid_volume_ratio_at, grid_volume_ratios)
 SHIFT = Kernel(shift_at, shifts)
 APPLY_SHIFT = Kernel(apply_shift_at, apply_shifts)
 INCREMENTAL_DILATATION = Kernel(incremental_dilatation_at, incremental_dilatation)
@@ -499,22 +505,28 @@ def merged_rows(bond_start, bond_nbr, len0, rebuilt, pairs, dist):
                 nbr[fill[p]] = bond_nbr[b]
                 src[fill[p]] = b
                 fill[p] += 1
-    for e in range(pairs.shape[0]):
-        p, q = pairs[e, 0], pairs[e, 1]
+    # The new bonds, both directions (k < E: pairs[k, 0] -> pairs[k, 1], k >= E: the reverse), counting-sorted by
+    # neighbour first, so that each row fills in neighbour order.
+    e_count = pairs.shape[0]
+    first = np.zeros(n + 1, np.int64)
+    for e in range(e_count):
+        first[pairs[e, 0] + 1] += 1
+        first[pairs[e, 1] + 1] += 1
+    for q in range(n):
+        first[q + 1] += first[q]
+    order = np.empty(2 * e_count, np.int64)
+    for k in range(2 * e_count):
+        q = pairs[k, 1] if k < e_count else pairs[k - e_count, 0]
+        order[first[q]] = k
+        first[q] += 1
+    for k in order:
+        e = k if k < e_count else k - e_count
+        p, q = (pairs[e, 0], pairs[e, 1]) if k < e_count else (pairs[e, 1], pairs[e, 0])
         nbr[fill[p]], length[fill[p]] = q, dist[e]
         fill[p] += 1
-        nbr[fill[q]], length[fill[q]] = p, dist[e]
-        fill[q] += 1
     for p in range(n):
         if not rebuilt[p]:
             continue
-        for a in range(start[p] + 1, start[p + 1]):  # insertion sort by q: rows hold a few dozen bonds
-            q, d = nbr[a], length[a]
-            c = a - 1
-            while c >= start[p] and nbr[c] > q:
-                nbr[c + 1], length[c + 1] = nbr[c], length[c]
-                c -= 1
-            nbr[c + 1], length[c + 1] = q, d
         b, last = bond_start[p], bond_start[p + 1]
         for a in range(start[p], start[p + 1]):  # both rows sorted: one walk finds the surviving bonds
             while b < last and bond_nbr[b] < nbr[a]:
@@ -587,15 +599,23 @@ def init_state(solver, state, body: int):
 
 def families(solver, body: int, dt: float):
     """After the forces (so particle_x_prev = particle_x and new bonds form at the next step's reference length):
-    once a particle has moved rebuild_distance h since the last rebuild, rebuild the body's families from current
-    neighbours (streams merge and split), keeping surviving bonds and every per-bond array with them. On the host:
-    the CUDA backend copies the arrays down and back."""
+    once a particle has moved rebuild_distance h since the last rebuild, relative to the middle of the body's range
+    of displacements, rebuild the body's families from current neighbours (streams merge and split), keeping
+    surviving bonds and every per-bond array with them. On the host: the CUDA backend copies the arrays down and
+    back.
+
+    Only relative motion counts, in any common frame: when no particle is more than r = rebuild_distance h from
+    it, no two have closed in by more than 2 r, so every pair within delta - 2 r is a bond. The middle of the
+    displacements' bounding box is that frame's centre (near the smallest r) where a stream falls onto a pile at
+    rest; the mean, which the pile's particles outweigh, rebuilt 1.5x as often (docs/results.md)."""
     b, state = solver.model.bodies[body], solver.state
+    if b.end == b.start:
+        return
     with solver.backend.on_host(state, ("particle_x", "particle_x_rebuild")):
         moved = state.particle_x[b.start:b.end] - state.particle_x_rebuild[b.start:b.end]
-        moved -= moved.mean(axis=0)  # a body moving as a whole keeps its neighbours: only relative motion counts
+        moved -= 0.5 * (moved.min(axis=0) + moved.max(axis=0))
         limit = b.params.rebuild_distance * b.spacing
-        if b.end == b.start or np.einsum("ij,ij->i", moved, moved).max() <= limit * limit:
+        if np.einsum("ij,ij->i", moved, moved).max() <= limit * limit:
             return
     carried = tuple(state.bond_arrays())
     with solver.backend.on_host(state, ("particle_x", "bond_start", "bond_nbr", "particle_m", "particle_x_rebuild")
@@ -604,11 +624,15 @@ def families(solver, body: int, dt: float):
 
 
 def rebuild(solver, state, b):
-    """Body b's families rebuilt from current neighbours on the host State, with m_p and the rebuild positions."""
-    state.bond_start, state.bond_nbr, arrays = rebuild_families(
-        state.particle_x, state.bond_start, state.bond_nbr, state.bond_arrays(), [(b.start, b.end, b.horizon)])
-    for name, array in arrays.items():
+    """Body b's families rebuilt from current neighbours on the host State, with m_p and the rebuild positions. The
+    per-bond arrays are carried with their bonds, but for the transient ones (refilled before they are read), which
+    are only resized."""
+    lasting = {name: a for name, a in state.bond_arrays().items() if not state.declared[name].transient}
+    state.bond_start, state.bond_nbr, carried = rebuild_families(
+        state.particle_x, state.bond_start, state.bond_nbr, lasting, [(b.start, b.end, b.horizon)])
+    for name, array in carried.items():
         setattr(state, name, array)
+    state.fit_transient_bonds()
     if state.has("bond_active"):  # bonds of a viscoelastic body never count as fracture damage
         state.bond_active[state.bond_start[b.start]:state.bond_start[b.end]] = 1
     lps_weighted_volume(b.start, b.end, b.horizon, solver.model.particle_volume, state.bond_start, state.bond_nbr,
@@ -628,7 +652,7 @@ def born(solver, state, body: int, first: int):
 def volume_pressure(solver, body: int, dt: float):
     """J advanced over the previous step and this step's pressure folded into the P2G affine momentum."""
     b, a, m = solver.model.bodies[body], solver.a, solver.m
-    solver.backend.run(VOLUME_PRESSURE, b.start, b.end, b.params.bulk_modulus, solver.state.dt_prev, dt,
+    solver.backend.run(VOLUME_PRESSURE, b.start, b.end, b.params.bulk_modulus, solver.state.dt_prev, solver.kick,
                        1.0 / solver.model.dx, m.pin_mask, m.particle_volume, m.particle_mass, a.particle_J,
                        a.particle_C)
 
@@ -640,23 +664,23 @@ def bonds(solver, body: int, dt: float):
     p = b.params
     run = solver.backend.run
     elapsed = solver.state.dt_prev  # the increment since particle_x_prev happened over the previous step, not dt
-    run(INCREMENTAL_DILATATION, b.start, b.end, b.horizon, a.particle_x, a.particle_x_prev, m.particle_volume,
-        a.bond_start, a.bond_nbr, a.bond_len0, a.particle_m, a.particle_dtheta)
-    run(FORCES, b.start, b.end, 0.0, p.mu, p.relaxation_time, p.relaxing_fraction, p.break_stretch, b.horizon,
-        elapsed, a.particle_x, a.particle_x_prev, m.particle_volume, a.bond_start, a.bond_nbr, a.particle_m,
-        a.particle_dtheta, a.bond_len0, a.bond_force_el, a.bond_force_visc, a.particle_force)
+    run(INCREMENTAL_DILATATION, b.start, b.end, 0.0, p.mu, b.horizon, a.particle_x, a.particle_x_prev,
+        m.particle_volume, a.bond_start, a.bond_nbr, a.bond_len0, a.particle_m, a.particle_dtheta, a.particle_lps,
+        a.bond_eta, a.bond_deta, a.bond_w)
+    run(FORCES, b.start, b.end, p.relaxation_time, p.relaxing_fraction, p.break_stretch, elapsed, a.particle_x,
+        m.particle_volume, a.bond_start, a.bond_nbr, a.particle_dtheta, a.particle_lps, a.bond_len0, a.bond_eta,
+        a.bond_deta, a.bond_w, a.bond_force_el, a.bond_force_visc, a.particle_force)
     run(COPY_ROWS, b.start, b.end, a.particle_x, a.particle_x_prev)
 
 
 def shift(solver, body: int, dt: float):
     """After G2P moved the particles: J no larger than the grid's volume ratio where P2G scattered from
-    (grid_volume_ratio_at; the body's own field with contact), then the particle shift (shift_at), computed for
-    every particle of the body from the moved positions and applied less its family's mean (apply_shift_at)."""
+    (grid_volume_ratio_at; the body's own field with contact, gathered by G2P), then the particle shift (shift_at),
+    computed for every particle of the body from the moved positions and applied less its family's mean
+    (apply_shift_at)."""
     b, a, m = solver.model.bodies[body], solver.a, solver.m
     run = solver.backend.run
-    grid = a.grid_field[body] if solver.plan.contact else a.grid
-    run(GRID_VOLUME_RATIO, b.start, b.end, b.params.density, grid, m.origin, 1.0 / solver.model.dx, m.pin_mask,
-        a.particle_x_prev, a.particle_J)
+    run(GRID_VOLUME_RATIO, b.start, b.end, b.params.density, m.pin_mask, a.particle_rho, a.particle_J)
     run(SHIFT, b.start, b.end, b.params.shift_distance * b.spacing, b.horizon, SHIFT_STRENGTH, SHIFT_CAP * b.spacing,
         SURFACE_OFFSET * b.horizon, m.pin_mask, a.particle_x, m.particle_volume, a.bond_start, a.bond_nbr,
         a.particle_shift)
@@ -681,7 +705,7 @@ def volume_ratio(model, state) -> np.ndarray:
 KIND = MaterialKind(
     name="viscoelastic", schema=Schema, params=params, forces=bonds, constants=constants, energy=energy,
     before_forces=volume_pressure, after_forces=families, flows=True, after_move=shift,
-    moves=lambda p: p.shift_distance > 0.0,
+    moves=lambda p: p.shift_distance > 0.0, reads_grid_density=lambda p: p.shift_distance > 0.0,
     start=init_state, born=born, with_flow_speed=with_flow_speed,
     outputs={"particle_J": volume_ratio},
     fields=(
@@ -692,6 +716,12 @@ KIND = MaterialKind(
         Field("bond_force_visc", BOND, doc="relaxing pair force [N/m^6]"),
         Field("particle_m", PARTICLE, doc="LPS weighted volume [m^5]"),
         Field("particle_dtheta", PARTICLE, transient=True, doc="incremental dilatation of the step [-]"),
+        Field("particle_lps", PARTICLE, (2,), transient=True, precise=True,
+              doc="the step's LPS coefficients 3 K dtheta / m and 15 mu / m of the pair force increment [N/m^7]"),
+        Field("bond_eta", BOND, transient=True, precise=True, doc="current length |eta| of each intact bond [m]"),
+        Field("bond_w", BOND, transient=True, precise=True, doc="influence w of each intact bond [-]"),
+        Field("bond_deta", BOND, transient=True, precise=True,
+              doc="length increment of each intact bond since the previous force evaluation [m]"),
         Field("particle_x_prev", PARTICLE, (3,), precise=True, doc="positions at the previous force evaluation [m]"),
         Field("particle_x_rebuild", PARTICLE, (3,), precise=True, doc="positions at the last family rebuild [m]"),
         Field("particle_shift", PARTICLE, (3,), transient=True, doc="particle shift of the step [m]"),
