@@ -23,6 +23,10 @@ much of their kinetic energy. `contact.model: penalty` replaces it with an elast
 the mass centres are closer than on the interface of touching bodies (`PENALTY_GAP`), proportional to how much
 closer, while the bodies approach and while they separate, so its work comes back (docs/method.md).
 
+Bodies that meet too fast for either to stop them within a cell interpenetrate, and inside each other the mass
+gradients give no normal: they passed through each other. Where the fields' mass centres at a node are closer than
+`DEEP_GAP` the fields stick (take the centre-of-mass velocity), as on one shared field.
+
 `grid_surface[f]` holds per node G_f (0..2, [kg/m]) and m_f (c_f - x_I) (3..5, [kg m]).
 
 Contact can only act where two fields have mass, i.e. where the node boxes of two bodies (their particles' stencils)
@@ -39,6 +43,7 @@ from numba import njit, prange
 from pdmpm_cli.engine.transfer import node_side, stencil_off_box, stencil_on_grid, stencil_with_gradients
 
 CONTACT_GAP = 1.25  # contact acts where the fields' mass centres at a node are closer than this along n [cells]
+DEEP_GAP = 0.25  # fields whose mass centres at a node are closer than this have interpenetrated: they stick [cells]
 PENALTY_GAP = 1.0  # penalty: the fields' mass centres at a node closer than this overlap [cells] (0.93 on the
 # interface of two touching half spaces, so bodies set down touching start unpushed)
 SURFACE = 6  # components of grid_surface: mass gradient, mass-weighted offset of the particles from the node
@@ -165,7 +170,8 @@ def contact_node_at(i, j, k, grid_field, grid_surface, friction, stiffness, dx, 
     check) loses its normal velocity relative to the centre of mass, and Coulomb friction (coefficient of that
     pair) acts on the tangential part: it sticks (takes the centre-of-mass velocity) while the tangential slip is
     at most mu times the normal one. Penalty (stiffness > 0): a field whose mass centre is closer to the others'
-    than PENALTY_GAP is pushed back along its normal for dt, with friction up to mu times the push."""
+    than PENALTY_GAP is pushed back along its normal for dt, with friction up to mu times the push. Either way,
+    fields whose mass centres are within DEEP_GAP have interpenetrated and take the centre-of-mass velocity."""
     nf = grid_field.shape[0]
     count = 0
     mt = p0 = p1 = p2 = g0 = g1 = g2 = s0 = s1 = s2 = 0.0
@@ -224,6 +230,10 @@ def contact_node_at(i, j, k, grid_field, grid_surface, friction, stiffness, dx, 
         e0 = (s0 - grid_surface[f, i, j, k, 3]) / mo - grid_surface[f, i, j, k, 3] / m
         e1 = (s1 - grid_surface[f, i, j, k, 4]) / mo - grid_surface[f, i, j, k, 4] / m
         e2 = (s2 - grid_surface[f, i, j, k, 5]) / mo - grid_surface[f, i, j, k, 5] / m
+        ee = e0 * e0 + e1 * e1 + e2 * e2
+        if kp >= 0.0 and ee < (DEEP_GAP * dx) ** 2:
+            grid_field[f, i, j, k, 1], grid_field[f, i, j, k, 2], grid_field[f, i, j, k, 3] = c0, c1, c2
+            continue
         mu = friction[f, heaviest]
         t0, t1, t2 = d0 - dn * n0, d1 - dn * n1, d2 - dn * n2
         tt = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
@@ -231,7 +241,7 @@ def contact_node_at(i, j, k, grid_field, grid_surface, friction, stiffness, dx, 
             # penalty: the mass centres closer than on the interface of touching half spaces -> an elastic push
             # along -n, F = kp m_red overlap / dx^2 (equal and opposite for two fields: their e and n are), whether
             # they approach or separate; friction up to mu F.
-            overlap = PENALTY_GAP * dx - math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+            overlap = PENALTY_GAP * dx - math.sqrt(ee)
             if overlap <= 0.0:
                 continue
             push = kp * mo / mt * overlap * dt / (dx * dx)  # F dt / m [m/s]
@@ -242,7 +252,7 @@ def contact_node_at(i, j, k, grid_field, grid_surface, friction, stiffness, dx, 
             continue
         if dn <= 0.0:
             continue  # moving away from the others: free
-        if e0 * e0 + e1 * e1 + e2 * e2 > (CONTACT_GAP * dx) ** 2:
+        if ee > (CONTACT_GAP * dx) ** 2:
             continue
         if tt <= mu * dn:
             grid_field[f, i, j, k, 1], grid_field[f, i, j, k, 2], grid_field[f, i, j, k, 3] = c0, c1, c2
