@@ -220,9 +220,7 @@ def viscoelastic_force_at(p, tau, fraction, break_stretch, dt, particle_x, parti
         if l0 <= 0.0:
             continue
         q = bond_nbr[b]
-        e0 = particle_x[q, 0] - particle_x[p, 0]
-        e1 = particle_x[q, 1] - particle_x[p, 1]
-        e2 = particle_x[q, 2] - particle_x[p, 2]
+        e0, e1, e2, _ = bond_vector(particle_x, p, q)  # its length: bond_eta[b] (the unused sqrt is dropped)
         l = bond_eta[b]
         if l / l0 - 1.0 > break_stretch:
             bond_len0[b] = -1.0
