@@ -20,15 +20,21 @@ from pdmpm_cli.study.sim import Sim
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "wall_break.yaml"
 
 
-def run(cell: float, energy: float, duration: float, cracks: str) -> list[str]:
-    t0 = time.perf_counter()
+def wall_scene(cell: float, duration: float) -> dict:
+    """scenes/wall_break.yaml as a dict at grid cell `cell`, Voronoi seeds at half the cell (the scene's ratio)."""
     scene = yaml.safe_load(SCENE.read_text())
     for key in ("variants", "render", "output", "name", "description"):
         scene.pop(key, None)
     scene["grid"]["cell_size"] = cell
     scene["simulation"]["duration"] = duration
+    scene["bodies"][0]["geometry"]["spacing"] = cell / 2
+    return scene
+
+
+def run(cell: float, energy: float, duration: float, cracks: str) -> list[str]:
+    t0 = time.perf_counter()
+    scene = wall_scene(cell, duration)
     wall = scene["bodies"][0]
-    wall["geometry"]["spacing"] = cell / 2
     wall["fracture"] = {"energy": energy, "damage_resistance": wall["fracture"]["damage_resistance"]}
     if cracks == "separate":  # crack fields need a field per body
         scene["contact"] = {"mode": "separate", "cracks": "separate"}

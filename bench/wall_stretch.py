@@ -11,27 +11,18 @@ with the cell while s0 grows as delta^-1/2, a crack starts at one resolution and
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
-import yaml
+from wall_fracture_energy import wall_scene
 
 from pdmpm_cli.engine.fracture import critical_stretch
 from pdmpm_cli.study.sim import Sim
 
-SCENE = Path(__file__).resolve().parents[1] / "scenes" / "wall_break.yaml"
-
 
 def run(cell: float, energy: float, duration: float) -> list[str]:
     t0 = time.perf_counter()
-    scene = yaml.safe_load(SCENE.read_text())
-    for key in ("variants", "render", "output", "name", "description"):
-        scene.pop(key, None)
-    scene["grid"]["cell_size"] = cell
-    scene["simulation"]["duration"] = duration
-    wall = scene["bodies"][0]
-    wall["geometry"]["spacing"] = cell / 2
-    wall.pop("fracture")
+    scene = wall_scene(cell, duration)
+    scene["bodies"][0].pop("fracture")
     sim = Sim(scene)
     m, b = sim.model, sim.model.bodies[0]
     start, end = m.bond_start[b.start], m.bond_start[b.end]
