@@ -153,13 +153,14 @@ def large_pieces(state, model, body: int = 0) -> int:
 
 def pull(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.4, after: float = 0.1,
          sampling: str = "relaxed", damage_resistance: float | None = None, cracks: str = "auto",
-         flip: float = 0.0, trace: list | None = None) -> Result:
+         flip: float = 0.0, seed: int = 0, trace: list | None = None) -> Result:
     """Pull the bar at `cell` until `after` seconds past its first separation (or `duration`); the energy balance.
-    `trace` (a list) receives per frame (t [s], W, strain, kinetic, cut bonds' energy, of it across the plane [J],
+    `seed` is the particle sampling's (simulation.seed). `trace` (a list) receives per frame (t [s], W, strain, kinetic, cut bonds' energy, of it across the plane [J],
     bonds cut)."""
     t0 = time.perf_counter()
     scene = bar_scene(cell, energy, bar, duration, sampling=sampling, cracks=cracks)
     scene["simulation"]["flip"] = flip
+    scene["simulation"]["seed"] = seed
     if damage_resistance is not None:
         scene["bodies"][0]["fracture"]["damage_resistance"] = damage_resistance
     sim = Sim(scene)
