@@ -1,10 +1,10 @@
 """wall_break with `fracture.energy` against resolution: pieces, first separation, mass in large pieces.
 
-Usage: python bench/wall_fracture_energy.py [--cells 0.04 0.02] [--energy 41] [--duration 0.5]
+Usage: python bench/wall_fracture_energy.py [--cells 0.04 0.02] [--energy 41] [--duration 0.5] [--seeds 0 1 2]
 scenes/wall_break.yaml at grid cell `cell` with Voronoi seeds at half the cell (the scene's ratio) and its
 fracture given as G_c instead of a threshold (41 J/m^2 gives about the scene's 0.05 at 2 cm cells), stepped in
 memory. Per cell: the wall's pieces over 5 % of its mass (over intact bonds) every 10 ms, the first time there were
-two, and the share of the mass they hold at the end.
+two, and the share of the mass they hold at the end; --seeds: one row per cell and Voronoi sampling (simulation.seed).
 """
 
 import argparse
@@ -31,9 +31,10 @@ def wall_scene(cell: float, duration: float) -> dict:
     return scene
 
 
-def run(cell: float, energy: float, duration: float, cracks: str) -> list[str]:
+def run(cell: float, energy: float, duration: float, cracks: str, seed: int = 0) -> list[str]:
     t0 = time.perf_counter()
     scene = wall_scene(cell, duration)
+    scene["simulation"]["seed"] = seed
     wall = scene["bodies"][0]
     wall["fracture"] = {"energy": energy, "damage_resistance": wall["fracture"]["damage_resistance"]}
     if cracks == "separate":  # crack fields need a field per body
@@ -49,7 +50,7 @@ def run(cell: float, energy: float, duration: float, cracks: str) -> list[str]:
         large = per_piece[per_piece > 0.05 * mass.sum()]
         if np.isnan(first) and len(large) >= 2:
             first = t
-    return [f"{cell:g}", str(b.end - b.start), f"{b.fracture.threshold:.4f}", f"{first:.2f}", str(len(large)),
+    return [f"{cell:g}", str(seed), str(b.end - b.start), f"{b.fracture.threshold:.4f}", f"{first:.2f}", str(len(large)),
             f"{100 * large.sum() / mass.sum():.1f}", f"{time.perf_counter() - t0:.0f}"]
 
 
@@ -60,13 +61,15 @@ def main():
     ap.add_argument("--duration", type=float, default=0.5, help="[s]")
     ap.add_argument("--cracks", choices=("shared", "separate"), default="shared",
                     help="separate: contact.cracks separate, with a field per body (contact.mode separate)")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0], help="simulation.seed: one row per cell and seed")
     args = ap.parse_args()
-    cols = ("cell [m]", "wall cells", "threshold", "first separation [s]", "large pieces at the end",
+    cols = ("cell [m]", "seed", "wall cells", "threshold", "first separation [s]", "large pieces at the end",
             "mass in them [%]", "run [s]")
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for cell in args.cells:
-        print("| " + " | ".join(run(cell, args.energy, args.duration, args.cracks)) + " |", flush=True)
+        for seed in args.seeds:
+            print("| " + " | ".join(run(cell, args.energy, args.duration, args.cracks, seed)) + " |", flush=True)
 
 
 if __name__ == "__main__":
