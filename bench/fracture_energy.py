@@ -2,8 +2,8 @@
 
 Usage: python bench/fracture_energy.py [--cells 0.04 0.03 0.02] [--energy 2.0] [--damage-resistance K]
     [--cracks auto|shared|separate] [--flip F] [--seeds 0 1 2]
-Prints one row per grid cell size (and seed): large pieces (over 5 % of the mass), time of first separation, the strain
-energy stored when the first bond broke (what an unstable crack releases as motion), the energy balance
+Prints one row per grid cell size (and seed): large pieces (over 5 % of the mass), time of first separation, the
+strain energy stored when the first bond broke (what an unstable crack releases as motion), the energy balance
 D = W - strain - kinetic against G_c A (A the ligament), split into what the bonds held when they were cut (and the
 part of it in the bonds across the notch's mid-plane, the crack's own) and the rest (numerical loss: transfers,
 crack contacts), the balance's own error before any bond broke, and the broken-bond area (sum of the broken bonds'
@@ -24,9 +24,9 @@ COLUMNS = ("cell [m]", "seed", "h [m]", "delta [m]", "particles", "threshold", "
 
 def row(r, seed: int) -> list[str]:
     ga = r.expected
-    return [f"{r.cell:g}", str(seed), f"{r.spacing:g}", f"{r.horizon:g}", str(r.particles), f"{r.threshold:.4g}", str(r.large),
-            f"{r.separation:.3f}", f"{r.stored / ga:.2f}", f"{r.dissipated / ga:.2f}", f"{r.cut_energy / ga:.2f}",
-            f"{r.plane_energy / ga:.2f}", f"{(r.dissipated - r.cut_energy) / ga:.2f}",
+    return [f"{r.cell:g}", str(seed), f"{r.spacing:g}", f"{r.horizon:g}", str(r.particles), f"{r.threshold:.4g}",
+            str(r.large), f"{r.separation:.3f}", f"{r.stored / ga:.2f}", f"{r.dissipated / ga:.2f}",
+            f"{r.cut_energy / ga:.2f}", f"{r.plane_energy / ga:.2f}", f"{(r.dissipated - r.cut_energy) / ga:.2f}",
             f"{r.before / r.work_before:.3f}", f"{r.bond_area / r.area:.2f}", f"{r.plane_area / r.area:.2f}",
             f"{r.seconds:.0f}"]
 

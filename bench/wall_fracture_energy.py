@@ -50,8 +50,8 @@ def run(cell: float, energy: float, duration: float, cracks: str, seed: int = 0)
         large = per_piece[per_piece > 0.05 * mass.sum()]
         if np.isnan(first) and len(large) >= 2:
             first = t
-    return [f"{cell:g}", str(seed), str(b.end - b.start), f"{b.fracture.threshold:.4f}", f"{first:.2f}", str(len(large)),
-            f"{100 * large.sum() / mass.sum():.1f}", f"{time.perf_counter() - t0:.0f}"]
+    return [f"{cell:g}", str(seed), str(b.end - b.start), f"{b.fracture.threshold:.4f}", f"{first:.2f}",
+            str(len(large)), f"{100 * large.sum() / mass.sum():.1f}", f"{time.perf_counter() - t0:.0f}"]
 
 
 def main():

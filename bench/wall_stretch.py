@@ -34,8 +34,9 @@ def run(cell: float, energy: float, duration: float) -> list[str]:
     def on_substep(st, dt):
         s = np.linalg.norm(st.particle_x[nbr] - st.particle_x[own], axis=1) / rest - 1.0
         np.maximum(peak, s, out=peak)
-        if peak.max() > when[1]:
-            when[:] = [st.time, peak.max()]
+        largest = peak.max()
+        if largest > when[1]:
+            when[:] = [st.time, largest]
 
     sim.advance(duration, on_substep)
     mat = m.materials[0]

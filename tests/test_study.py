@@ -65,7 +65,6 @@ def test_column_space_order_reduced():
     assert 0.8 < study.slope("space", "h")[0] < 2.5
 
 
-
 def test_column_on_a_lattice_stays_where_it_settled():
     """An elastic column under its own weight, its motion damped out, is in static equilibrium: it must stay put.
     On a lattice (every family symmetric: no particle-scale force under a smooth strain) the top moves by less
@@ -87,6 +86,7 @@ def test_column_on_a_lattice_stays_where_it_settled():
     print(f"top settlement at 3 and 9 periods: {settled[0]:.6e}, {settled[1]:.6e} m (exact {COLUMN_SETTLE:.6e})")
     assert settled[0] == pytest.approx(COLUMN_SETTLE, rel=0.15)
     assert abs(settled[1] - settled[0]) < 5e-4 * settled[0]
+
 
 def test_free_fall_is_exact_at_every_step_and_resolution():
     """A falling ball has no space error, and the leapfrog's drop has no time error (Solver.substep: symplectic

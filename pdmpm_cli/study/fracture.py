@@ -155,8 +155,8 @@ def pull(cell: float, energy: float, bar: Bar = Bar(), duration: float = 0.4, af
          sampling: str = "relaxed", damage_resistance: float | None = None, cracks: str = "auto",
          flip: float = 0.0, seed: int = 0, trace: list | None = None) -> Result:
     """Pull the bar at `cell` until `after` seconds past its first separation (or `duration`); the energy balance.
-    `seed` is the particle sampling's (simulation.seed). `trace` (a list) receives per frame (t [s], W, strain, kinetic, cut bonds' energy, of it across the plane [J],
-    bonds cut)."""
+    `seed` is the particle sampling's (simulation.seed). `trace` (a list) receives per frame (t [s], W, strain,
+    kinetic, cut bonds' energy, of it across the plane [J], bonds cut)."""
     t0 = time.perf_counter()
     scene = bar_scene(cell, energy, bar, duration, sampling=sampling, cracks=cracks)
     scene["simulation"]["flip"] = flip
